@@ -1,0 +1,176 @@
+"""The pipeline and the build driver: ``compile_spec = render ∘ lower ∘ check ∘ symbolic ∘ parse``.
+
+``build`` compiles every spec first and writes only if all of them compiled, so a bad spec never leaves a partial
+output behind; files are replaced atomically and only when their bytes change.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import os
+import tempfile
+from pathlib import Path
+
+from . import checks, lower as lower_mod, parse, render, symbolic
+from .errors import CodegenError, Location, SpecError, SpecErrors
+from .schema import CodegenData, SymbolicProblem
+
+__all__ = ["compile_spec", "compile_file", "build", "BuildResult", "Compiled", "DEFAULT_OUT", "spec_files"]
+
+# runtime/systems beside this package (the repository layout, and site-packages/myriad/ in a wheel).
+DEFAULT_OUT = Path(__file__).resolve().parent.parent / "runtime" / "systems"
+
+
+@dataclasses.dataclass(frozen=True)
+class Compiled:
+    name: str
+    text: str
+    data: CodegenData
+    symbolic: SymbolicProblem
+
+
+def _symbolic(text: str, display: str) -> SymbolicProblem:
+    spec = parse.parse_spec(text, display)
+    checks.check_names(spec)
+    sym = symbolic.to_symbolic(spec)
+    checks.check_problem(sym)
+    return sym
+
+
+def compile_spec(text: str, display: str = "<spec>") -> Compiled:
+    """Compile spec text to module text. Raises SpecError (bad spec) or CodegenError."""
+    sym = _symbolic(text, display)
+    data = lower_mod.lower(sym, display)
+    return Compiled(sym.spec.name, render.render_system(data), data, sym)
+
+
+def _display(path: Path) -> str:
+    """The path shown in messages and headers: relative to the working directory when inside it."""
+    try:
+        rel = os.path.relpath(path)
+    except ValueError:
+        return str(path)
+    return str(path) if rel.startswith("..") else rel
+
+
+def _read(path: Path, display: str) -> str:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SpecError(f"cannot read file: {exc.strerror}", Location(display, 1, 1)) from None
+    if len(raw) > parse.MAX_SPEC_BYTES:
+        raise SpecError(f"spec is larger than {parse.MAX_SPEC_BYTES} bytes", Location(display, 1, 1))
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"file is not UTF-8 text (byte {exc.start})", Location(display, 1, 1)) from None
+
+
+def compile_file(path: str | os.PathLike, display: str | None = None) -> Compiled:
+    path = Path(path)
+    display = display or _display(path)
+    return compile_spec(_read(path, display), display)
+
+
+def check_file(path: str | os.PathLike) -> SymbolicProblem:
+    """Validate only (parse, symbolic, checks): no code is generated."""
+    path = Path(path)
+    display = _display(path)
+    return _symbolic(_read(path, display), display)
+
+
+def spec_files(paths) -> list[Path]:
+    """Expand directories to their *.yaml files (sorted); keep files as given; reject what does not exist."""
+    out = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            out.extend(sorted(p.glob("*.yaml")))
+        elif p.exists():
+            out.append(p)
+        else:
+            raise FileNotFoundError(str(p))
+    return out
+
+
+@dataclasses.dataclass
+class BuildResult:
+    written: list[str] = dataclasses.field(default_factory=list)
+    unchanged: list[str] = dataclasses.field(default_factory=list)
+    stale: list[str] = dataclasses.field(default_factory=list)
+    diffs: list[str] = dataclasses.field(default_factory=list)
+    errors: list[Exception] = dataclasses.field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return not self.errors and not self.stale
+
+
+def _is_generated(path: Path) -> bool:
+    try:
+        with path.open("r", encoding="utf-8") as fh:
+            return fh.readline().startswith(render.REGISTRY_HEADER)
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=".myriadc-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def build(paths, out_dir: str | os.PathLike | None = None, check: bool = False) -> BuildResult:
+    """Compile specs into ``out_dir`` (default: the package's runtime/systems) with a registry ``__init__.py``.
+
+    With ``check=True`` nothing is written: outputs whose bytes differ are reported as stale with a unified diff.
+    """
+    out = Path(out_dir) if out_dir is not None else DEFAULT_OUT
+    result = BuildResult()
+    compiled: list[Compiled] = []
+    names: dict[str, str] = {}
+    for path in spec_files(paths):
+        try:
+            c = compile_file(path)
+        except SpecErrors as exc:
+            result.errors.extend(exc.errors)
+            continue
+        except (SpecError, CodegenError) as exc:
+            result.errors.append(exc)
+            continue
+        if c.name in names:
+            result.errors.append(SpecError(f"system `{c.name}` is also defined by {names[c.name]}",
+                                           Location(_display(path), 1, 1, ("name",))))
+            continue
+        names[c.name] = _display(path)
+        compiled.append(c)
+    if result.errors:
+        return result  # all or nothing: a bad spec leaves no output behind
+
+    outputs = {out / f"{c.name}.py": c.text for c in compiled}
+    existing = {p.stem for p in out.glob("*.py") if p.name != "__init__.py" and _is_generated(p)} if out.is_dir() else set()
+    outputs[out / "__init__.py"] = render.render_registry(sorted(existing | set(names)))
+
+    if not check:
+        out.mkdir(parents=True, exist_ok=True)
+    for path, text in outputs.items():
+        old = path.read_text(encoding="utf-8") if path.exists() else None
+        shown = _display(path)
+        if old == text:
+            result.unchanged.append(shown)
+        elif check:
+            result.stale.append(shown)
+            result.diffs.append("".join(difflib.unified_diff(
+                (old or "").splitlines(keepends=True), text.splitlines(keepends=True),
+                fromfile=f"{shown} (committed)", tofile=f"{shown} (from specs)")))
+        else:
+            _write_atomic(path, text)
+            result.written.append(shown)
+    return result

@@ -1,0 +1,127 @@
+"""Pass 3, checks: well-posedness before any code is generated.
+
+``check_names`` runs on the parsed spec (names decide how expressions resolve, so it comes before the symbolic pass);
+``check_problem`` runs on the symbolic problem (equations per state, bounds, conditions, what costs may depend on).
+"""
+
+from __future__ import annotations
+
+import builtins
+import keyword
+import math
+import os
+import re
+
+import sympy
+
+from .errors import Location, SpecError
+from .schema import ProblemSpec, SymbolicProblem
+from .symbolic import CONSTANTS, FUNCTIONS
+
+__all__ = ["check_names", "check_problem", "RESERVED"]
+
+_IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
+_SYSTEM_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+# Names the generated module or its readers use: a spec symbol with one of these names would shadow them.
+RESERVED = frozenset({
+    "t", "e", "inf", "nan", "jax", "jnp", "np", "numpy", "math", "myriad", "self", "params", "cls", "System",
+    "functools", "sympy", "None", "True", "False",
+    *FUNCTIONS, *CONSTANTS, *dir(builtins),
+})
+
+
+def _error(spec: ProblemSpec, message: str, loc: Location) -> SpecError:
+    line = spec.lines[loc.line - 1] if 0 < loc.line <= len(spec.lines) else None
+    return SpecError(message, loc, line)
+
+
+def _show(name: str) -> str:
+    text = "".join(ch if ch.isprintable() else "?" for ch in name)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def check_names(spec: ProblemSpec) -> None:
+    """System name, symbol names (identifier, not reserved, unique across sections), equations per state."""
+    stem = os.path.splitext(os.path.basename(spec.file))[0]
+    if not _SYSTEM_NAME.match(spec.name) or keyword.iskeyword(spec.name) or len(spec.name) > 64:
+        raise _error(spec, f"system name `{_show(spec.name)}` must be a lowercase identifier ([a-z][a-z0-9_]*, at "
+                     "most 64 characters), e.g. `cancer_treatment`; it names the generated module", spec.name_loc)
+    if spec.file.endswith((".yaml", ".yml")) and stem != spec.name:
+        raise _error(spec, f"name `{_show(spec.name)}` must equal the file stem `{_show(stem)}`; rename the file or "
+                     "the system", spec.name_loc)
+
+    seen: dict[str, str] = {}
+    groups = [
+        ("parameter", [(p.name, p.loc) for p in spec.parameters]),
+        ("definition", [(d.name, d.loc) for d in spec.definitions]),
+        ("state", [(s.name, s.loc) for s in spec.states]),
+        ("control", [(c.name, c.loc) for c in spec.controls]),
+    ]
+    for kind, names in groups:
+        for name, loc in names:
+            if not _IDENT.match(name):
+                why = "must not start with `_`" if name.startswith("_") else "must be an ASCII identifier"
+                raise _error(spec, f"{kind} name `{_show(name)}` {why} (letters, digits and `_`, starting with a "
+                             "letter), e.g. `theta_dot`", loc)
+            if keyword.iskeyword(name) or keyword.issoftkeyword(name):
+                raise _error(spec, f"{kind} name `{name}` is a Python keyword; choose another, e.g. `{name}_`", loc)
+            if name in RESERVED:
+                raise _error(spec, f"{kind} name `{name}` is reserved (a function, constant or name the generated code "
+                             f"uses); choose another, e.g. `{name}_{kind[0]}`", loc)
+            if name in seen:
+                raise _error(spec, f"{kind} name `{name}` is already declared as a {seen[name]}; states, controls, "
+                             "parameters and definitions share one namespace", loc)
+            seen[name] = kind
+
+    state_names = [s.name for s in spec.states]
+    for eq in spec.dynamics:
+        if eq.name not in state_names:
+            hint = "it is a control: only states have equations" if seen.get(eq.name) == "control" else \
+                f"declared states: {', '.join(state_names)}"
+            raise _error(spec, f"equation for `{_show(eq.name)}`, which is not a state; {hint}", eq.loc)
+    have = {eq.name for eq in spec.dynamics}
+    for s in spec.states:
+        if s.name not in have:
+            raise _error(spec, f"state `{s.name}` has no equation; add `{s.name}: <expression>` under `dynamics:`",
+                         spec.dynamics_loc)
+
+
+def check_problem(sym: SymbolicProblem) -> None:
+    """Bounds well-formed, initial and final values inside bounds, horizon, and what each cost may use."""
+    spec = sym.spec
+    for var, lo, hi in [*zip(spec.states, sym.x_lower, sym.x_upper), *zip(spec.controls, sym.u_lower, sym.u_upper)]:
+        loc = var.bounds_loc or var.loc
+        if lo == math.inf or hi == -math.inf:
+            raise _error(spec, f"bounds of `{var.name}` are [{lo}, {hi}]: the lower bound cannot be +inf nor the "
+                         "upper -inf; write `[-.inf, .inf]` for unbounded", loc)
+        if lo > hi:
+            raise _error(spec, f"bounds of `{var.name}` are reversed: lower {lo:g} > upper {hi:g}; write "
+                         "`[lower, upper]`", loc)
+    for s, x0, lo, hi, xf in zip(spec.states, sym.x0, sym.x_lower, sym.x_upper, sym.x_final):
+        if not lo <= x0 <= hi:
+            raise _error(spec, f"initial value {x0:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]; fix the "
+                         "initial value or widen the bounds", s.initial.loc)
+        if xf is not None and not lo <= xf <= hi:
+            raise _error(spec, f"required final value {xf:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]",
+                         s.final.loc)
+    if not sym.horizon > 0:
+        raise _error(spec, f"horizon must be positive, got {sym.horizon:g}", spec.horizon.loc)
+    controls = set(sym.controls)
+    used = sym.terminal.free_symbols & controls
+    if used and spec.terminal is not None:
+        names = ", ".join(sorted(str(u) for u in used))
+        raise _error(spec, f"the terminal cost uses the control(s) {names}; it is a function of the final state "
+                     "(and parameters) only: move control terms into `running`", spec.terminal.loc)
+    exprs = [("dynamics." + s.name, e, s_eq.expr) for s, e, s_eq in
+             zip(spec.states, sym.dynamics, sorted(spec.dynamics, key=lambda q: [x.name for x in spec.states].index(q.name)))]
+    exprs.append(("cost.running", sym.running, spec.running))
+    if spec.terminal is not None:
+        exprs.append(("cost.terminal", sym.terminal, spec.terminal))
+    for field, e, src in exprs:
+        if e.has(sympy.zoo, sympy.nan) or e.has(sympy.oo) or e.has(-sympy.oo):
+            raise _error(spec, f"`{field}` evaluates to an infinite or undefined value (e.g. a division by zero); "
+                         "check the expression", src.loc)
+        if e.has(sympy.I):
+            raise _error(spec, f"`{field}` is complex-valued; check the expression", src.loc)
+        if e.is_Relational or isinstance(e, (sympy.logic.boolalg.BooleanFunction, sympy.logic.boolalg.BooleanAtom)):
+            raise _error(spec, f"`{field}` is a condition, not a value; use where(cond, a, b)", src.loc)

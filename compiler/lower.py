@@ -1,0 +1,290 @@
+"""Pass 4, lower: the checked symbolic problem → :class:`CodegenData` (every decision made, every string printed).
+
+Derived here, symbolically, in minimisation form (a ``maximize`` spec's payoff is negated first):
+  * f, L, φ and their Jacobians;
+  * the Hamiltonian H = L + λ·f and the costate equations λ' = −∂H/∂x, with λ(T) = ∂φ/∂x(T);
+  * the optimal-control characterisation: u* from ∂H/∂u = 0 when H is quadratic in u with a positive, decoupled
+    curvature; the switching function's sign (bang-bang) when H is linear in u with finite bounds; else "none" and
+    the reason. u* is clipped to the control bounds (exact for decoupled quadratics).
+Shared subexpressions are factored by ``sympy.cse`` with deterministic names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import sympy
+
+from .errors import CodegenError
+from .printer import StrictJaxPrinter
+from .schema import CodegenData, CodegenFunction, SymbolicProblem
+
+__all__ = ["lower", "derive", "Derived", "class_name"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Derived:
+    """The minimisation-form artefacts, as sympy (used by lowering, `myriadc show` and the tests)."""
+
+    f: tuple
+    L: object
+    phi: object
+    lam: tuple
+    H: object
+    costate: tuple
+    dH_du: tuple
+    terminal_costate: tuple
+    u_star: tuple | None
+    u_star_kind: str
+    u_star_note: str
+
+
+def class_name(system_name: str) -> str:
+    return "".join(part[:1].upper() + part[1:] for part in system_name.split("_") if part) or "System_"
+
+
+def derive(sym: SymbolicProblem) -> Derived:
+    sign = 1 if sym.spec.sense == "minimize" else -1
+    f = tuple(sym.dynamics)
+    L = sign * sym.running
+    phi = sign * sym.terminal
+    lam = tuple(sympy.Symbol(f"_lam{i}", real=True) for i in range(len(sym.states)))
+    H = L + sum((li * fi for li, fi in zip(lam, f)), sympy.Integer(0))
+    costate = tuple(-sympy.diff(H, x) for x in sym.states)
+    dH_du = tuple(sympy.diff(H, u) for u in sym.controls)
+    terminal_costate = tuple(sympy.diff(phi, x) for x in sym.states)
+    u_star, kind, note = _characterise(sym, H, dH_du)
+    return Derived(f, L, phi, lam, H, costate, dH_du, terminal_costate, u_star, kind, note)
+
+
+def _characterise(sym: SymbolicProblem, H, dH_du):
+    """u* minimising H over the control box, when it has a closed form; else (None, "none", reason)."""
+    controls = sym.controls
+    nominal = dict(zip(sym.params, sym.param_values))
+    u_star, kinds = [], []
+    for j, (u, g, lo, hi) in enumerate(zip(controls, dH_du, sym.u_lower, sym.u_upper)):
+        curv = sympy.diff(g, u)
+        if curv.free_symbols & set(controls):
+            return None, "none", (f"H is neither linear nor quadratic in `{u}` (d2H/d{u}2 = {curv} depends on the "
+                                  "controls), so dH/du = 0 has no closed form here; use a direct transcription")
+        for k, v in enumerate(controls):
+            if k != j and sympy.diff(g, v) != 0:
+                return None, "none", (f"H couples the controls `{u}` and `{v}` (d2H/d{u}d{v} != 0); the indirect "
+                                      "method here needs decoupled controls")
+        if curv == 0:
+            if math.isinf(lo) or math.isinf(hi):
+                return None, "none", (f"H is linear in `{u}` but its bounds [{lo}, {hi}] are not finite: no "
+                                      "minimiser exists")
+            sigma = g  # switching function: H is increasing in u where sigma > 0, so u sits at its lower bound
+            u_star.append(sympy.Piecewise((_num(lo), sigma > 0), (_num(hi), sigma < 0),
+                                          (_num((lo + hi) / 2), True)))
+            kinds.append("bang_bang")
+            continue
+        if curv.free_symbols - set(sym.params):
+            return None, "none", (f"d2H/d{u}2 = {curv} depends on the state or costate; its sign (a minimum) cannot "
+                                  "be guaranteed symbolically")
+        if not float(curv.subs(nominal)) > 0:
+            return None, "none", (f"d2H/d{u}2 = {curv} is not positive at the nominal parameters: dH/d{u} = 0 is "
+                                  "not a minimum")
+        free = -g.subs(u, 0) / curv
+        u_star.append(sympy.Min(sympy.Max(free, _num(lo)), _num(hi)))
+        kinds.append("stationary")
+    kind = "bang_bang" if "bang_bang" in kinds else "stationary"
+    if kind == "bang_bang":
+        note = ("H is linear in " + ", ".join(str(u) for u, k in zip(controls, kinds) if k == "bang_bang")
+                + ": u* = lower bound where the switching function dH/du > 0, upper bound where < 0, mid-box on a "
+                "singular arc (dH/du = 0)")
+    else:
+        note = "u* solves dH/du = 0 (H quadratic in u, positive curvature at the nominal parameters), clipped to the bounds"
+    return tuple(u_star), kind, note
+
+
+def _num(v: float):
+    if math.isinf(v):
+        return sympy.oo if v > 0 else -sympy.oo
+    return sympy.Float(v, 17) if not float(v).is_integer() else sympy.Integer(int(v))
+
+
+# ---- code generation -------------------------------------------------------------------------------------------
+
+_ARGS = {
+    "x": ("_x", "state vector, shape (n_states,)"),
+    "u": ("_u", "control vector, shape (n_controls,)"),
+    "lam": ("_lam", "costate vector, shape (n_states,)"),
+    "t": ("_t", "time"),
+    "p": ("_p", "parameters, a dict of scalars"),
+}
+
+
+def _function(name, doc, argkinds, outputs, shape, sym, derived, field) -> CodegenFunction:
+    """Print one function: unpack used symbols, CSE temporaries, then the output (scalar, vector or matrix)."""
+    flat = list(outputs) if shape != "matrix" else [e for row in outputs for e in row]
+    temps, reduced = sympy.cse(flat, symbols=sympy.numbered_symbols("_c"), optimizations=None, order="canonical")
+    used = set().union(*(e.free_symbols for e in reduced), *(e.free_symbols for _, e in temps)) if flat else set()
+    unpack = []
+    if "x" in argkinds:
+        unpack += [(str(s), f"_x[{i}]") for i, s in enumerate(sym.states) if s in used]
+    if "u" in argkinds:
+        unpack += [(str(s), f"_u[{i}]") for i, s in enumerate(sym.controls) if s in used]
+    if "lam" in argkinds:
+        unpack += [(str(s), f"_lam[{i}]") for i, s in enumerate(derived.lam) if s in used]
+    if "t" in argkinds and sym.time in used:
+        unpack.append(("t", "_t"))
+    unpack += [(str(s), f"_p[{str(s)!r}]") for s in sym.params if s in used]
+    allowed = {sympy.Symbol(n, real=True) for n, _ in unpack} | {s for s, _ in temps}
+    stray = used - allowed
+    if stray:
+        raise CodegenError(f"{field} depends on {', '.join(sorted(map(str, stray)))}, which {name} does not take")
+
+    printer = StrictJaxPrinter().for_field(field)
+    temp_lines = tuple((str(s), printer.doprint(e)) for s, e in temps)
+
+    def out(e):
+        # Constants print as floats so arrays built from them are floating point, never integer.
+        if not e.free_symbols:
+            return repr(float(e)) if e.is_number and e.is_finite else printer.doprint(e)
+        return printer.doprint(e)
+
+    if shape == "scalar":
+        e = reduced[0]
+        result = out(e) if e.free_symbols else f"jax.numpy.asarray({out(e)})"
+    elif shape == "vector":
+        result = "jax.numpy.array([" + ", ".join(out(e) for e in reduced) + "])"
+    else:
+        ncols = len(outputs[0]) if outputs else 0
+        rows = [reduced[i * ncols:(i + 1) * ncols] for i in range(len(outputs))]
+        result = "jax.numpy.array([" + ", ".join("[" + ", ".join(out(e) for e in r) + "]" for r in rows) + "])"
+    args = tuple(_ARGS[k][0] for k in argkinds)
+    return CodegenFunction(name=name, doc=doc, args=args, unpack=tuple(unpack), temps=temp_lines, result=result)
+
+
+def _lit(v) -> str:
+    """A Python literal for metadata; text goes through repr so it can never break out of the literal."""
+    if v is None:
+        return "None"
+    if isinstance(v, bool):
+        return repr(v)
+    if isinstance(v, float):
+        if math.isinf(v):
+            return "math.inf" if v > 0 else "-math.inf"
+        if math.isnan(v):
+            return "math.nan"
+        return repr(v)
+    if isinstance(v, (int, str)):
+        return repr(v)
+    if isinstance(v, tuple):
+        if len(v) == 1:
+            return f"({_lit(v[0])},)"
+        return "(" + ", ".join(_lit(x) for x in v) + ")"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_lit(k)}: {_lit(x)}" for k, x in v.items()) + "}"
+    raise TypeError(type(v))
+
+
+def safe_comment(text: str) -> str:
+    """Text for a generated comment: one line of printable ASCII."""
+    return "".join(ch if 32 <= ord(ch) < 127 else "?" for ch in text)
+
+
+def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
+    spec = sym.spec
+    d = derive(sym)
+    n, m = len(sym.states), len(sym.controls)
+    X, U = sym.states, sym.controls
+
+    fns = [
+        _function("dynamics", "f(x, u, t, p): the state derivative, shape (n_states,).",
+                  ("x", "u", "t", "p"), d.f, "vector", sym, d, "dynamics"),
+        _function("running_cost", "L(x, u, t, p), minimisation form.",
+                  ("x", "u", "t", "p"), (d.L,), "scalar", sym, d, "cost.running"),
+        _function("terminal_cost", "phi(x, t, p) at the final time, minimisation form.",
+                  ("x", "t", "p"), (d.phi,), "scalar", sym, d, "cost.terminal"),
+        _function("dynamics_jac_x", "df/dx, shape (n_states, n_states).", ("x", "u", "t", "p"),
+                  tuple(tuple(sympy.diff(fi, xj) for xj in X) for fi in d.f), "matrix", sym, d, "dynamics"),
+        _function("dynamics_jac_u", "df/du, shape (n_states, n_controls).", ("x", "u", "t", "p"),
+                  tuple(tuple(sympy.diff(fi, uj) for uj in U) for fi in d.f), "matrix", sym, d, "dynamics"),
+        _function("running_cost_grad_x", "dL/dx, shape (n_states,).", ("x", "u", "t", "p"),
+                  tuple(sympy.diff(d.L, xj) for xj in X), "vector", sym, d, "cost.running"),
+        _function("running_cost_grad_u", "dL/du, shape (n_controls,).", ("x", "u", "t", "p"),
+                  tuple(sympy.diff(d.L, uj) for uj in U), "vector", sym, d, "cost.running"),
+        _function("terminal_cost_grad_x", "dphi/dx, shape (n_states,).", ("x", "t", "p"),
+                  d.terminal_costate, "vector", sym, d, "cost.terminal"),
+        _function("hamiltonian", "H = L + lam . f, minimisation form.", ("x", "u", "lam", "t", "p"),
+                  (d.H,), "scalar", sym, d, "hamiltonian"),
+        _function("costate_dynamics", "lam' = -dH/dx, shape (n_states,).", ("x", "u", "lam", "t", "p"),
+                  d.costate, "vector", sym, d, "costate"),
+        _function("hamiltonian_grad_u", "dH/du, shape (n_controls,).", ("x", "u", "lam", "t", "p"),
+                  d.dH_du, "vector", sym, d, "hamiltonian"),
+        _function("terminal_costate", "lam(T) = dphi/dx(x(T)) for free final states, shape (n_states,).",
+                  ("x", "t", "p"), d.terminal_costate, "vector", sym, d, "cost.terminal"),
+    ]
+    if d.u_star is not None:
+        fns.append(_function("optimal_control", f"u*(x, lam, t, p), {d.u_star_kind}: {d.u_star_note}.",
+                             ("x", "lam", "t", "p"), d.u_star, "vector", sym, d, "optimal_control"))
+
+    learnable = tuple(p.name for p in spec.parameters if p.learnable)
+    guesses = tuple(g for p, g in zip(spec.parameters, sym.guesses) if p.learnable)
+    used_t = sym.time in (set().union(*(e.free_symbols for e in d.f)) | d.L.free_symbols)
+    metadata = (
+        ("name", _lit(spec.name)),
+        ("title", _lit(spec.title)),
+        ("description", _lit(spec.description)),
+        ("source", _lit(spec.source)),
+        ("spec_file", _lit(display_path)),
+        ("spec_sha256", _lit(spec.sha256)),
+        ("schema", _lit(spec.schema)),
+        ("sense", _lit(spec.sense)),
+        ("horizon", _lit(sym.horizon)),
+        ("state_names", _lit(tuple(s.name for s in spec.states))),
+        ("state_descriptions", _lit(tuple(s.description for s in spec.states))),
+        ("state_units", _lit(tuple(s.units for s in spec.states))),
+        ("control_names", _lit(tuple(c.name for c in spec.controls))),
+        ("control_descriptions", _lit(tuple(c.description for c in spec.controls))),
+        ("control_units", _lit(tuple(c.units for c in spec.controls))),
+        ("param_names", _lit(tuple(p.name for p in spec.parameters))),
+        ("param_values", _lit(sym.param_values)),
+        ("param_descriptions", _lit(tuple(p.description for p in spec.parameters))),
+        ("learnable", _lit(learnable)),
+        ("learnable_guesses", _lit(guesses)),
+        ("x0", _lit(sym.x0)),
+        ("x_lower", _lit(sym.x_lower)),
+        ("x_upper", _lit(sym.x_upper)),
+        ("u_lower", _lit(sym.u_lower)),
+        ("u_upper", _lit(sym.u_upper)),
+        ("x_final", _lit(sym.x_final)),
+        ("has_terminal_cost", _lit(spec.terminal is not None)),
+        ("time_dependent", _lit(bool(used_t))),
+        ("optimal_control_kind", _lit(d.u_star_kind)),
+        ("optimal_control_note", _lit(d.u_star_note)),
+        ("reference", _lit(dict(spec.reference))),
+    )
+    lam_names = {str(l): f"lam_{x}" for l, x in zip(d.lam, X)}
+
+    def show(e):
+        text = sympy.sstr(e)
+        for k in sorted(lam_names, key=len, reverse=True):
+            text = text.replace(k, lam_names[k])
+        return text
+
+    summary = [(f"d{x}/dt", show(fi)) for x, fi in zip(X, d.f)]
+    summary += [("L", show(d.L)), ("phi", show(d.phi)), ("H", show(d.H))]
+    summary += [(f"d{lam_names[str(l)]}/dt", show(c)) for l, c in zip(d.lam, d.costate)]
+    summary += [(f"{lam_names[str(l)]}(T)", show(c) if xf is None else f"free: {x}(T) = {xf:g} is required")
+                for l, c, x, xf in zip(d.lam, d.terminal_costate, X, sym.x_final)]
+    if d.u_star is None:
+        summary.append(("u*", f"not derived: {d.u_star_note}"))
+    else:
+        summary += [(f"{u}* ({d.u_star_kind})", show(e)) for u, e in zip(U, d.u_star)]
+
+    header = (f"Autogenerated by myriadc from {safe_comment(display_path)} (schema {spec.schema}, sha256 "
+              f"{spec.sha256}). Do not edit.")
+    return CodegenData(
+        header=header,
+        module_doc=_lit(f"{spec.title}: generated JAX system (minimisation form).\n\n{spec.description}"),
+        class_name=class_name(spec.name),
+        imports=("import math", "", "import jax.numpy", "", "from myriad.runtime.system import System as _System"),
+        metadata=metadata,
+        functions=tuple(fns),
+        summary=tuple(summary),
+    )

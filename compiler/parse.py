@@ -1,0 +1,287 @@
+"""Pass 1, parse: YAML text → :class:`ProblemSpec`, keeping the source position of every field.
+
+Only the YAML *structure* and scalar types are checked here; expressions stay text until the symbolic pass.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from typing import Any
+
+import yaml
+
+from .errors import Location, SpecError
+from .schema import SCHEMA_VERSION, Expr, Named, Parameter, ProblemSpec, Variable
+
+__all__ = ["parse_spec", "parse_file"]
+
+MAX_SPEC_BYTES = 1_000_000
+
+TOP_FIELDS = {
+    "schema": True, "name": True, "title": True, "description": True, "source": False, "parameters": False,
+    "definitions": False, "states": True, "controls": True, "dynamics": True, "cost": True, "horizon": True,
+    "reference": False,
+}
+PARAM_FIELDS = {"value": True, "description": False, "units": False, "learnable": False, "guess": False}
+STATE_FIELDS = {"initial": True, "final": False, "bounds": False, "description": False, "units": False}
+CONTROL_FIELDS = {"bounds": False, "description": False, "units": False}
+COST_FIELDS = {"sense": True, "running": True, "terminal": False}
+REFERENCE_FIELDS = {"published": False, "target": False, "note": False}
+SENSES = ("minimize", "maximize")
+
+
+class _Reader:
+    """Walks composed YAML nodes with their marks, producing SpecErrors that point into the file."""
+
+    def __init__(self, file: str, text: str):
+        self.file = file
+        self.lines = tuple(text.splitlines())
+        self._loader = yaml.SafeLoader("")
+
+    def loc(self, node: yaml.Node, path: tuple[str, ...]) -> Location:
+        return Location(self.file, node.start_mark.line + 1, node.start_mark.column + 1, path)
+
+    def error(self, message: str, loc: Location) -> SpecError:
+        line = self.lines[loc.line - 1] if 0 < loc.line <= len(self.lines) else None
+        return SpecError(message, loc, line)
+
+    def mapping(self, node: yaml.Node, path: tuple[str, ...], fields: dict[str, bool] | None, what: str):
+        """Check a mapping node; return [(key, key_node, value_node)] in file order."""
+        if not isinstance(node, yaml.MappingNode):
+            raise self.error(f"expected a mapping ({what}), got {_kind(node)}", self.loc(node, path))
+        items, seen = [], {}
+        for key_node, value_node in node.value:
+            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag != "tag:yaml.org,2002:str":
+                raise self.error(
+                    f"keys must be plain names, got {_kind(key_node)}; write `name: ...`", self.loc(key_node, path)
+                )
+            key = key_node.value
+            if key in seen:
+                raise self.error(
+                    f"duplicate key `{_show(key)}` (first at line {seen[key]}); remove one of them",
+                    self.loc(key_node, path + (key,)),
+                )
+            seen[key] = key_node.start_mark.line + 1
+            if fields is not None and key not in fields:
+                allowed = ", ".join(fields)
+                hint = _did_you_mean(key, fields)
+                raise self.error(
+                    f"unknown field `{_show(key)}` in {what}{hint}; allowed fields: {allowed}",
+                    self.loc(key_node, path + (key,)),
+                )
+            items.append((key, key_node, value_node))
+        if fields is not None:
+            for f, required in fields.items():
+                if required and f not in seen:
+                    raise self.error(f"missing required field `{f}` in {what}; add `{f}: ...`", self.loc(node, path))
+        return items
+
+    def scalar(self, node: yaml.Node, path: tuple[str, ...]) -> Any:
+        if not isinstance(node, yaml.ScalarNode):
+            raise self.error(f"expected a single value, got {_kind(node)}", self.loc(node, path))
+        try:
+            return self._loader.construct_object(node)
+        except yaml.YAMLError as exc:
+            raise self.error(f"cannot read this value ({_first_line(exc)})", self.loc(node, path)) from None
+
+    def text(self, node: yaml.Node, path: tuple[str, ...], what: str) -> str:
+        value = self.scalar(node, path)
+        if not isinstance(value, str):
+            raise self.error(f"expected text for {what}, got {type(value).__name__} `{value}`", self.loc(node, path))
+        return value
+
+    def boolean(self, node: yaml.Node, path: tuple[str, ...]) -> bool:
+        value = self.scalar(node, path)
+        if not isinstance(value, bool):
+            raise self.error(f"expected true or false, got `{_show(str(value))}`", self.loc(node, path))
+        return value
+
+    def expr(self, node: yaml.Node, path: tuple[str, ...]) -> Expr:
+        """An expression or number; YAML numbers stay numbers, anything else becomes expression text."""
+        loc = self.loc(node, path)
+        value = self.scalar(node, path)
+        if isinstance(value, bool) or value is None:
+            shown = "empty" if value is None else str(value).lower()
+            raise self.error(f"expected a number or an expression, got {shown}", loc)
+        if isinstance(value, (int, float)):
+            return Expr(text=node.value, loc=loc, number=float(value))
+        if not isinstance(value, str):
+            raise self.error(f"expected a number or an expression, got {type(value).__name__}", loc)
+        single_line = node.start_mark.line == node.end_mark.line
+        quote = 1 if node.style in ("'", '"') else 0
+        # Columns map onto the file only when the text is the scalar verbatim (no escapes, no folding).
+        offset_ok = single_line and node.style in (None, "'", '"') and "\\" not in value and "''" not in value
+        return Expr(text=value, loc=loc, offset_ok=offset_ok, quote=quote)
+
+
+def _kind(node: yaml.Node) -> str:
+    if isinstance(node, yaml.MappingNode):
+        return "a mapping"
+    if isinstance(node, yaml.SequenceNode):
+        return "a list"
+    return f"`{_show(node.value)}`"
+
+
+def _show(text: str, limit: int = 40) -> str:
+    """Quote user text for a message: printable, one line, bounded."""
+    text = "".join(ch if ch.isprintable() else "?" for ch in str(text))
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _first_line(exc: Exception) -> str:
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def _did_you_mean(key: str, options) -> str:
+    import difflib
+
+    close = difflib.get_close_matches(key, list(options), n=1)
+    return f" (did you mean `{close[0]}`?)" if close else ""
+
+
+def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
+    """Parse spec text. Raises :class:`SpecError` pointing at the first problem."""
+    r = _Reader(file, text)
+    if len(text.encode("utf-8", "surrogatepass")) > MAX_SPEC_BYTES:
+        raise r.error(f"spec is larger than {MAX_SPEC_BYTES} bytes", Location(file, 1, 1))
+    try:
+        loader = yaml.SafeLoader(text)
+        try:
+            root = loader.get_single_node()
+        finally:
+            loader.dispose()
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
+        raise r.error(f"invalid YAML: {exc.problem or exc.context}; check indentation and quoting",
+                      Location(file, line, col)) from None
+    except (yaml.YAMLError, RecursionError, ValueError) as exc:
+        raise r.error(f"invalid YAML: {_first_line(exc)}", Location(file, 1, 1)) from None
+    if root is None:
+        raise r.error("the spec is empty; start with `schema: 1`", Location(file, 1, 1))
+
+    top = {k: (kn, vn) for k, kn, vn in r.mapping(root, (), TOP_FIELDS, "the spec")}
+
+    schema_node = top["schema"][1]
+    schema = r.scalar(schema_node, ("schema",))
+    if isinstance(schema, bool) or not isinstance(schema, int) or schema != SCHEMA_VERSION:
+        raise r.error(f"unsupported schema `{_show(str(schema))}`; this compiler reads `schema: {SCHEMA_VERSION}`",
+                      r.loc(schema_node, ("schema",)))
+
+    name_node = top["name"][1]
+    name = r.text(name_node, ("name",), "the system name")
+    title = r.text(top["title"][1], ("title",), "the title")
+    description = r.text(top["description"][1], ("description",), "the description")
+    source = r.text(top["source"][1], ("source",), "the source") if "source" in top else ""
+
+    parameters = []
+    if "parameters" in top:
+        for key, kn, vn in r.mapping(top["parameters"][1], ("parameters",), None, "`parameters`"):
+            path = ("parameters", key)
+            if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
+                parameters.append(Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",))))
+                continue
+            f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
+            learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
+            guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
+            if learnable and guess is None:
+                raise r.error(f"learnable parameter `{key}` needs a `guess:` (the starting value for system "
+                              "identification)", r.loc(vn, path))
+            if guess is not None and not learnable:
+                raise r.error("`guess` is only used with `learnable: true`; add `learnable: true` or remove `guess`",
+                              r.loc(f["guess"], path + ("guess",)))
+            parameters.append(Parameter(
+                name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
+                description=r.text(f["description"], path + ("description",), "a description") if "description" in f else "",
+                units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
+                learnable=learnable, guess=guess,
+            ))
+
+    definitions = []
+    if "definitions" in top:
+        for key, kn, vn in r.mapping(top["definitions"][1], ("definitions",), None, "`definitions`"):
+            definitions.append(Named(key, r.loc(kn, ("definitions", key)), r.expr(vn, ("definitions", key))))
+
+    states = _variables(r, top["states"][1], "states", STATE_FIELDS, "state")
+    controls = _variables(r, top["controls"][1], "controls", CONTROL_FIELDS, "control")
+
+    dynamics = []
+    dyn_node = top["dynamics"][1]
+    for key, kn, vn in r.mapping(dyn_node, ("dynamics",), None, "`dynamics` (one equation per state)"):
+        dynamics.append(Named(key, r.loc(kn, ("dynamics", key)), r.expr(vn, ("dynamics", key))))
+
+    cost = {k: v for k, _, v in r.mapping(top["cost"][1], ("cost",), COST_FIELDS, "`cost`")}
+    sense = r.scalar(cost["sense"], ("cost", "sense"))
+    if sense not in SENSES:
+        raise r.error(f"`sense` must be `minimize` or `maximize`, got `{_show(str(sense))}`",
+                      r.loc(cost["sense"], ("cost", "sense")))
+    running = r.expr(cost["running"], ("cost", "running"))
+    terminal = r.expr(cost["terminal"], ("cost", "terminal")) if "terminal" in cost else None
+
+    horizon = r.expr(top["horizon"][1], ("horizon",))
+
+    reference = []
+    if "reference" in top:
+        for key, _, vn in r.mapping(top["reference"][1], ("reference",), REFERENCE_FIELDS, "`reference`"):
+            value = r.scalar(vn, ("reference", key))
+            if key == "note":
+                if not isinstance(value, str):
+                    raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
+            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
+                              r.loc(vn, ("reference", key)))
+            else:
+                value = float(value)
+            reference.append((key, value))
+
+    return ProblemSpec(
+        file=file, lines=r.lines, sha256=hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest(),
+        schema=schema, name=name, name_loc=r.loc(name_node, ("name",)), title=title, description=description,
+        source=source, parameters=tuple(parameters), definitions=tuple(definitions), states=tuple(states),
+        controls=tuple(controls), dynamics=tuple(dynamics), dynamics_loc=r.loc(dyn_node, ("dynamics",)),
+        sense=sense, running=running, terminal=terminal, horizon=horizon, reference=tuple(reference),
+    )
+
+
+def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool], kind: str) -> list[Variable]:
+    out = []
+    items = r.mapping(node, (section,), None, f"`{section}`")
+    if not items:
+        raise r.error(f"`{section}` is empty; declare at least one {kind}", r.loc(node, (section,)))
+    for key, kn, vn in items:
+        path = (section, key)
+        f = {k: v for k, _, v in r.mapping(vn, path, fields, f"{kind} `{_show(key)}`")}
+        lower = upper = bounds_loc = None
+        if "bounds" in f:
+            b = f["bounds"]
+            bounds_loc = r.loc(b, path + ("bounds",))
+            if not isinstance(b, yaml.SequenceNode) or len(b.value) != 2:
+                raise r.error(f"`bounds` must be a list `[lower, upper]`, got {_kind(b) if not isinstance(b, yaml.SequenceNode) else f'{len(b.value)} items'}",
+                              bounds_loc)
+            lower = r.expr(b.value[0], path + ("bounds", "lower"))
+            upper = r.expr(b.value[1], path + ("bounds", "upper"))
+        out.append(Variable(
+            name=key, loc=r.loc(kn, path), kind=kind,
+            initial=r.expr(f["initial"], path + ("initial",)) if "initial" in f else None,
+            final=r.expr(f["final"], path + ("final",)) if "final" in f else None,
+            lower=lower, upper=upper, bounds_loc=bounds_loc,
+            description=r.text(f["description"], path + ("description",), "a description") if "description" in f else "",
+            units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
+        ))
+    return out
+
+
+def parse_file(path: str, display: str | None = None) -> ProblemSpec:
+    """Read and parse a spec file; ``display`` is the path shown in messages."""
+    display = display or path
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_SPEC_BYTES + 1)
+    except OSError as exc:
+        raise SpecError(f"cannot read file: {exc.strerror}", Location(display, 1, 1)) from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"file is not UTF-8 text (byte {exc.start})", Location(display, 1, 1)) from None
+    return parse_spec(text, display)

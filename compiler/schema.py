@@ -1,0 +1,144 @@
+"""The compiler's intermediate representations: frozen dataclasses, one per pass boundary.
+
+``ProblemSpec`` (parse) → ``SymbolicProblem`` (symbolic, checked) → ``CodegenData`` (lower) → text (render).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from .errors import Location
+
+SCHEMA_VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class Expr:
+    """Expression text from the spec with where it came from.
+
+    ``number`` is set when YAML itself gave a number (so no expression parsing is needed); ``offset_ok`` says whether
+    a column inside ``text`` maps linearly onto the file (single-line plain or quoted scalars).
+    """
+
+    text: str
+    loc: Location
+    number: float | None = None
+    offset_ok: bool = False
+    quote: int = 0  # columns taken by an opening quote
+
+    def at(self, col_offset: int) -> Location:
+        """The file location of a 0-based column inside ``text``."""
+        if not self.offset_ok:
+            return self.loc
+        return dataclasses.replace(self.loc, col=self.loc.col + self.quote + col_offset)
+
+
+@dataclasses.dataclass(frozen=True)
+class Parameter:
+    name: str
+    loc: Location
+    value: Expr
+    description: str = ""
+    units: str = ""
+    learnable: bool = False
+    guess: Expr | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Variable:
+    """A state or a control."""
+
+    name: str
+    loc: Location
+    kind: str  # "state" | "control"
+    initial: Expr | None = None
+    final: Expr | None = None
+    lower: Expr | None = None
+    upper: Expr | None = None
+    bounds_loc: Location | None = None
+    description: str = ""
+    units: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Named:
+    """A named expression: a definition or one state's equation."""
+
+    name: str
+    loc: Location
+    expr: Expr
+
+
+@dataclasses.dataclass(frozen=True)
+class ProblemSpec:
+    """What the parse pass read: structure and types checked, expressions still text."""
+
+    file: str
+    lines: tuple[str, ...]
+    sha256: str
+    schema: int
+    name: str
+    name_loc: Location
+    title: str
+    description: str
+    source: str
+    parameters: tuple[Parameter, ...]
+    definitions: tuple[Named, ...]
+    states: tuple[Variable, ...]
+    controls: tuple[Variable, ...]
+    dynamics: tuple[Named, ...]
+    dynamics_loc: Location
+    sense: str
+    running: Expr
+    terminal: Expr | None
+    horizon: Expr
+    reference: tuple[tuple[str, Any], ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class SymbolicProblem:
+    """Sympy expressions for everything, in the spec's own sense (not yet negated), plus evaluated constants."""
+
+    spec: ProblemSpec
+    states: tuple[Any, ...]  # sympy Symbols, in order
+    controls: tuple[Any, ...]
+    params: tuple[Any, ...]
+    time: Any
+    dynamics: tuple[Any, ...]  # one sympy expression per state
+    running: Any
+    terminal: Any
+    param_values: tuple[float, ...]
+    guesses: tuple[float | None, ...]
+    x0: tuple[float, ...]
+    x_lower: tuple[float, ...]
+    x_upper: tuple[float, ...]
+    u_lower: tuple[float, ...]
+    u_upper: tuple[float, ...]
+    x_final: tuple[float | None, ...]
+    horizon: float
+
+
+@dataclasses.dataclass(frozen=True)
+class CodegenFunction:
+    """One generated function: argument unpacking, CSE temporaries and outputs, all as printed strings."""
+
+    name: str
+    doc: str
+    args: tuple[str, ...]
+    unpack: tuple[tuple[str, str], ...]  # (local name, source expression)
+    temps: tuple[tuple[str, str], ...]  # (temporary, printed expression)
+    result: str  # printed return expression
+
+
+@dataclasses.dataclass(frozen=True)
+class CodegenData:
+    """Everything the template needs, already decided and printed: templates only lay it out."""
+
+    header: str
+    module_doc: str
+    class_name: str
+    imports: tuple[str, ...]
+    metadata: tuple[tuple[str, str], ...]  # (attribute, Python literal)
+    functions: tuple[CodegenFunction, ...]
+    summary: tuple[tuple[str, str], ...]  # human-readable equations for `myriadc show`

@@ -1,0 +1,418 @@
+"""Pass 2, symbolic: expression text → sympy, through a whitelisted grammar.
+
+Spec text is never handed to ``eval``, ``exec`` or ``sympy.sympify``/``parse_expr`` (which evaluate Python). It is
+parsed by :func:`ast.parse` (which only builds a tree) and the tree is walked here: every node type, function and
+name must be on a whitelist, or the walk stops with a :class:`SpecError` that points at the offending column.
+"""
+
+from __future__ import annotations
+
+import ast
+import difflib
+import fractions
+import math
+
+import sympy
+
+from .errors import Location, SpecError
+from .schema import Expr, ProblemSpec, SymbolicProblem
+
+__all__ = ["to_symbolic", "ExpressionParser", "FUNCTIONS", "wrap_mod", "wrap_floor", "TIME"]
+
+MAX_EXPR_CHARS = 10_000
+MAX_DEPTH = 200
+
+TIME = sympy.Symbol("t", real=True)
+
+
+class wrap_mod(sympy.Function):  # noqa: N801 - sympy function naming
+    """x modulo m with the sign of m (like numpy.mod), with the almost-everywhere derivatives sympy's Mod lacks."""
+
+    nargs = 2
+
+    @classmethod
+    def eval(cls, x, m):
+        if x.is_Number and m.is_Number and m != 0:
+            return sympy.Mod(x, m)
+        return None
+
+    def fdiff(self, argindex=1):
+        x, m = self.args
+        if argindex == 1:
+            return sympy.Integer(1)
+        return -wrap_floor(x / m)
+
+    def _eval_evalf(self, prec):
+        x, m = (a.evalf(prec) for a in self.args)
+        if x.is_Number and m.is_Number:
+            return sympy.Mod(x, m).evalf(prec)
+        return None
+
+
+class wrap_floor(sympy.Function):  # noqa: N801
+    """floor with derivative 0 (almost everywhere); sympy's floor has none, and an unevaluated one cannot print."""
+
+    nargs = 1
+
+    @classmethod
+    def eval(cls, x):
+        return sympy.floor(x) if x.is_Number else None
+
+    def fdiff(self, argindex=1):
+        return sympy.Integer(0)
+
+    def _eval_evalf(self, prec):
+        x = self.args[0].evalf(prec)
+        return sympy.floor(x) if x.is_Number else None
+
+
+def _clip(x, lo, hi):
+    return sympy.Min(sympy.Max(x, lo), hi)
+
+
+# name: (sympy constructor, min args, max args or None for variadic)
+FUNCTIONS = {
+    "exp": (sympy.exp, 1, 1),
+    "log": (sympy.log, 1, 1),
+    "sqrt": (sympy.sqrt, 1, 1),
+    "sin": (sympy.sin, 1, 1),
+    "cos": (sympy.cos, 1, 1),
+    "tan": (sympy.tan, 1, 1),
+    "asin": (sympy.asin, 1, 1),
+    "acos": (sympy.acos, 1, 1),
+    "atan": (sympy.atan, 1, 1),
+    "sinh": (sympy.sinh, 1, 1),
+    "cosh": (sympy.cosh, 1, 1),
+    "tanh": (sympy.tanh, 1, 1),
+    "abs": (sympy.Abs, 1, 1),
+    "sign": (sympy.sign, 1, 1),
+    "atan2": (sympy.atan2, 2, 2),
+    "min": (sympy.Min, 2, None),
+    "max": (sympy.Max, 2, None),
+    "clip": (_clip, 3, 3),
+    "mod": (wrap_mod, 2, 2),
+    "where": (None, 3, 3),
+    "piecewise": (None, 3, None),
+}
+CONSTANTS = {"pi": sympy.pi}
+
+_BINOPS = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*", ast.Div: "/", ast.Pow: "**"}
+_BAD_BINOPS = {
+    ast.BitXor: "`^` is not a power here; write `x**2` for x squared",
+    ast.Mod: "`%` is not supported; write `mod(x, m)`",
+    ast.FloorDiv: "`//` is not supported; write `x/y` (or `mod`)",
+    ast.MatMult: "`@` is not supported",
+    ast.LShift: "`<<` is not supported", ast.RShift: "`>>` is not supported",
+    ast.BitAnd: "`&` is not supported; in a condition write `and`",
+    ast.BitOr: "`|` is not supported; in a condition write `or`",
+}
+_COMPARE = {ast.Lt: sympy.Lt, ast.LtE: sympy.Le, ast.Gt: sympy.Gt, ast.GtE: sympy.Ge, ast.Eq: sympy.Eq, ast.NotEq: sympy.Ne}
+_NODE_NAMES = {
+    ast.Attribute: "attribute access (`a.b`)", ast.Subscript: "indexing (`a[i]`)", ast.Lambda: "a lambda",
+    ast.IfExp: "`a if c else b` (write `where(c, a, b)`)", ast.List: "a list", ast.Tuple: "a tuple",
+    ast.Dict: "a dict", ast.Set: "a set", ast.ListComp: "a comprehension", ast.GeneratorExp: "a generator",
+    ast.DictComp: "a comprehension", ast.SetComp: "a comprehension", ast.Starred: "`*` unpacking",
+    ast.NamedExpr: "`:=`", ast.JoinedStr: "an f-string", ast.Await: "`await`", ast.Yield: "`yield`",
+}
+
+
+class ExpressionParser:
+    """Turns one spec expression into sympy, resolving names against an explicit namespace.
+
+    Args:
+        namespace: name -> sympy expression (a Symbol, or a definition's expression to inline).
+        hint: what to say when a name is undeclared.
+        allow_inf: accept `inf` (numeric constant fields such as bounds).
+    """
+
+    def __init__(self, namespace: dict, lines: tuple[str, ...], hint: str, allow_inf: bool = False):
+        self.namespace = namespace
+        self.lines = lines
+        self.hint = hint
+        self.allow_inf = allow_inf
+
+    def error(self, message: str, loc: Location) -> SpecError:
+        line = self.lines[loc.line - 1] if 0 < loc.line <= len(self.lines) else None
+        return SpecError(message, loc, line)
+
+    def parse(self, expr: Expr):
+        if expr.number is not None:
+            return _number_from_text(expr.text, expr.number)
+        text = expr.text
+        if not text.strip():
+            raise self.error("empty expression; write a number or a formula", expr.loc)
+        if len(text) > MAX_EXPR_CHARS:
+            raise self.error(f"expression longer than {MAX_EXPR_CHARS} characters; use `definitions:` to split it",
+                             expr.loc)
+        if "\x00" in text:
+            raise self.error("expression contains a NUL character", expr.loc)
+        try:
+            tree = ast.parse(text.strip() if not expr.offset_ok else text, mode="eval")
+        except SyntaxError as exc:
+            col = (exc.offset or 1) - 1 if exc.lineno in (None, 1) else 0
+            msg = exc.msg.split(" (")[0]
+            raise self.error(f"syntax error in expression: {msg}; expressions use + - * / ** and f(x)",
+                             expr.at(col)) from None
+        except (RecursionError, MemoryError, ValueError) as exc:
+            raise self.error(f"cannot parse expression ({type(exc).__name__}); simplify it", expr.loc) from None
+        self._expr = expr
+        self._text = text
+        try:
+            return self._value(tree.body, 0)
+        except RecursionError:
+            raise self.error("expression nested too deeply; use `definitions:` to split it", expr.loc) from None
+
+    # -- helpers -------------------------------------------------------------------------------------------
+    def _at(self, node: ast.AST) -> Location:
+        return self._expr.at(getattr(node, "col_offset", 0)) if getattr(node, "lineno", 1) == 1 else self._expr.loc
+
+    def _segment(self, node: ast.AST) -> str:
+        seg = ast.get_source_segment(self._text, node) or ""
+        return seg if len(seg) <= 40 else seg[:37] + "..."
+
+    def _reject(self, node: ast.AST):
+        what = _NODE_NAMES.get(type(node), f"`{type(node).__name__}`")
+        raise self.error(f"{what} is not allowed in expressions; use numbers, declared names, + - * / ** and the "
+                         "functions listed in specs/README.md", self._at(node))
+
+    def _check_depth(self, node, depth):
+        if depth > MAX_DEPTH:
+            raise self.error("expression nested too deeply; use `definitions:` to split it", self._at(node))
+
+    # -- values ----------------------------------------------------------------------------------------------
+    def _value(self, node: ast.AST, depth: int):
+        self._check_depth(node, depth)
+        if isinstance(node, ast.Constant):
+            v = node.value
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                kind = "text" if isinstance(v, str) else type(v).__name__
+                raise self.error(f"{kind} `{self._segment(node)}` is not a number; expressions take numbers and "
+                                 "declared names only", self._at(node))
+            return _number_from_text(self._segment(node) or repr(v), v)
+        if isinstance(node, ast.Name):
+            return self._name(node)
+        if isinstance(node, ast.BinOp):
+            op = type(node.op)
+            if op in _BAD_BINOPS:
+                raise self.error(_BAD_BINOPS[op], self._at(node))
+            a = self._value(node.left, depth + 1)
+            b = self._value(node.right, depth + 1)
+            if op is ast.Add:
+                return a + b
+            if op is ast.Sub:
+                return a - b
+            if op is ast.Mult:
+                return a * b
+            if op is ast.Div:
+                if b == 0:
+                    raise self.error("division by zero", self._at(node))
+                return a / b
+            return sympy.Pow(a, b)
+        if isinstance(node, ast.UnaryOp):
+            if isinstance(node.op, ast.USub):
+                return -self._value(node.operand, depth + 1)
+            if isinstance(node.op, ast.UAdd):
+                return self._value(node.operand, depth + 1)
+            if isinstance(node.op, ast.Not):
+                raise self.error("`not` is only allowed in the condition of where()/piecewise()", self._at(node))
+            raise self.error("`~` is not supported", self._at(node))
+        if isinstance(node, ast.Call):
+            return self._call(node, depth)
+        if isinstance(node, (ast.Compare, ast.BoolOp)):
+            raise self.error("a comparison is only allowed as the condition of where(cond, a, b) or piecewise()",
+                             self._at(node))
+        self._reject(node)
+
+    def _name(self, node: ast.Name):
+        name = node.id
+        if name in self.namespace:
+            return self.namespace[name]
+        if name in CONSTANTS:
+            return CONSTANTS[name]
+        if name == "inf" and self.allow_inf:
+            return sympy.oo
+        if name.startswith("__") or name.startswith("_"):
+            raise self.error(f"names starting with `_` are not allowed (`{name}`)", self._at(node))
+        if name in FUNCTIONS:
+            raise self.error(f"`{name}` is a function; call it as `{name}(...)`", self._at(node))
+        if name == "inf":
+            raise self.error("`inf` is only allowed in bounds", self._at(node))
+        if name == "e":
+            raise self.error("`e` is not a constant here; write `exp(1)`", self._at(node))
+        close = difflib.get_close_matches(name, [*self.namespace, *CONSTANTS], n=1)
+        suggestion = f" (did you mean `{close[0]}`?)" if close else ""
+        raise self.error(f"undeclared symbol `{name}`{suggestion}; {self.hint}", self._at(node))
+
+    def _call(self, node: ast.Call, depth: int):
+        if not isinstance(node.func, ast.Name):
+            raise self.error("only the listed functions can be called, by name (e.g. `exp(x)`); attribute or "
+                             "computed calls are not allowed", self._at(node))
+        fname = node.func.id
+        if fname not in FUNCTIONS:
+            close = difflib.get_close_matches(fname, FUNCTIONS, n=1)
+            suggestion = f" (did you mean `{close[0]}`?)" if close else ""
+            raise self.error(f"unknown function `{fname}`{suggestion}; allowed: {', '.join(FUNCTIONS)}",
+                             self._at(node))
+        if node.keywords or any(isinstance(a, ast.Starred) for a in node.args):
+            raise self.error(f"`{fname}` takes positional arguments only", self._at(node))
+        ctor, lo, hi = FUNCTIONS[fname]
+        n = len(node.args)
+        if n < lo or (hi is not None and n > hi):
+            want = f"{lo}" if lo == hi else (f"{lo} or more" if hi is None else f"{lo} to {hi}")
+            raise self.error(f"`{fname}` takes {want} arguments, got {n}", self._at(node))
+        if fname == "where":
+            cond = self._condition(node.args[0], depth + 1)
+            a = self._value(node.args[1], depth + 1)
+            b = self._value(node.args[2], depth + 1)
+            return sympy.Piecewise((a, cond), (b, True))
+        if fname == "piecewise":
+            if n % 2 == 0:
+                raise self.error("`piecewise(c1, a1, ..., default)` needs a default value as its last argument "
+                                 f"(got {n} arguments, an even number)", self._at(node))
+            pieces = []
+            for i in range(0, n - 1, 2):
+                pieces.append((self._value(node.args[i + 1], depth + 1), self._condition(node.args[i], depth + 1)))
+            pieces.append((self._value(node.args[-1], depth + 1), True))
+            return sympy.Piecewise(*pieces)
+        args = [self._value(a, depth + 1) for a in node.args]
+        return ctor(*args)
+
+    # -- conditions ------------------------------------------------------------------------------------------
+    def _condition(self, node: ast.AST, depth: int):
+        self._check_depth(node, depth)
+        if isinstance(node, ast.Compare):
+            terms = [self._value(node.left, depth + 1)] + [self._value(c, depth + 1) for c in node.comparators]
+            parts = []
+            for op, a, b in zip(node.ops, terms, terms[1:]):
+                rel = _COMPARE.get(type(op))
+                if rel is None:
+                    raise self.error("only < <= > >= == != comparisons are allowed", self._at(node))
+                parts.append(rel(a, b))
+            return sympy.And(*parts)
+        if isinstance(node, ast.BoolOp):
+            parts = [self._condition(v, depth + 1) for v in node.values]
+            return sympy.And(*parts) if isinstance(node.op, ast.And) else sympy.Or(*parts)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+            return sympy.Not(self._condition(node.operand, depth + 1))
+        raise self.error("a condition must be a comparison such as `x > 0` (joined with and/or/not)", self._at(node))
+
+
+def _number_from_text(text: str, value) -> sympy.Expr:
+    """An exact sympy number for a literal: decimals become rationals so no binary rounding enters the IR."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return sympy.oo if value > 0 else -sympy.oo
+    if isinstance(value, int) and not isinstance(value, bool):
+        return sympy.Integer(value)
+    try:
+        frac = fractions.Fraction(text.strip().replace("_", ""))
+    except (ValueError, ZeroDivisionError):
+        frac = fractions.Fraction(value)
+    return sympy.Rational(frac.numerator, frac.denominator)
+
+
+def _hint(kinds: str) -> str:
+    return f"declare it under {kinds}"
+
+
+def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
+    """Build sympy expressions for every expression and evaluate every constant field.
+
+    Assumes :func:`compiler.checks.check_names` passed (names are valid and unique).
+    """
+    lines = spec.lines
+    params = tuple(sympy.Symbol(p.name, real=True) for p in spec.parameters)
+    states = tuple(sympy.Symbol(s.name, real=True) for s in spec.states)
+    controls = tuple(sympy.Symbol(c.name, real=True) for c in spec.controls)
+
+    # Parameter values may use earlier parameters (their values), so evaluate in order.
+    const_ns: dict = {}
+    param_values = []
+    for p, sym in zip(spec.parameters, params):
+        parser = ExpressionParser(const_ns, lines, "a parameter value may use only numbers, pi and earlier parameters")
+        value = _constant(parser, p.value, finite=True)
+        const_ns[p.name] = sympy.Rational(fractions.Fraction(value))
+        param_values.append(value)
+    numeric_params = {sym: sympy.Rational(fractions.Fraction(v)) for sym, v in zip(params, param_values)}
+
+    # Definitions: inline in order; a definition may use any earlier definition (no cycles by construction).
+    full_ns: dict = {str(s): s for s in (*params, *states, *controls)}
+    full_ns["t"] = TIME
+    definitions = {}
+    def_parser = ExpressionParser(full_ns, lines, _hint("parameters:, states:, controls: or definitions: (a "
+                                                       "definition may use only definitions written above it)"))
+    for d in spec.definitions:
+        definitions[d.name] = def_parser.parse(d.expr)
+        full_ns[d.name] = definitions[d.name]
+
+    expr_parser = ExpressionParser(full_ns, lines, _hint("parameters:, states:, controls: or definitions:"))
+    dynamics_by_state = {}
+    for eq in spec.dynamics:
+        dynamics_by_state[eq.name] = (eq, expr_parser.parse(eq.expr))
+    dynamics = tuple(dynamics_by_state[s.name][1] if s.name in dynamics_by_state else None for s in spec.states)
+
+    # The IR keeps the spec's own sense; lowering negates a payoff into minimisation form.
+    running = expr_parser.parse(spec.running)
+    terminal = expr_parser.parse(spec.terminal) if spec.terminal is not None else sympy.Integer(0)
+
+    # Constant fields: numbers, pi, inf, parameters at nominal values, parameter-only definitions.
+    constant_ns = dict(const_ns)
+    for name, e in definitions.items():
+        if e.free_symbols <= set(params):
+            constant_ns[name] = e.subs(numeric_params)
+    for name in full_ns:
+        constant_ns.setdefault(name, None)  # declared but not constant: explained below
+    cparser = _ConstantParser(constant_ns, lines)
+
+    def const(e: Expr | None, default: float, finite: bool) -> float:
+        return default if e is None else _constant(cparser, e, finite=finite)
+
+    x0 = tuple(const(s.initial, math.nan, True) for s in spec.states)
+    x_lower = tuple(const(s.lower, -math.inf, False) for s in spec.states)
+    x_upper = tuple(const(s.upper, math.inf, False) for s in spec.states)
+    u_lower = tuple(const(c.lower, -math.inf, False) for c in spec.controls)
+    u_upper = tuple(const(c.upper, math.inf, False) for c in spec.controls)
+    x_final = tuple(None if s.final is None else _constant(cparser, s.final, finite=True) for s in spec.states)
+    horizon = _constant(cparser, spec.horizon, finite=True)
+    guesses = tuple(None if p.guess is None else _constant(cparser, p.guess, finite=True) for p in spec.parameters)
+
+    return SymbolicProblem(
+        spec=spec, states=states, controls=controls, params=params, time=TIME, dynamics=dynamics,
+        running=running, terminal=terminal, param_values=tuple(param_values), guesses=guesses, x0=x0,
+        x_lower=x_lower, x_upper=x_upper, u_lower=u_lower, u_upper=u_upper, x_final=x_final, horizon=horizon,
+    )
+
+
+class _ConstantParser(ExpressionParser):
+    """Parses constant fields: names that are not constants (states, controls, t) get a precise message."""
+
+    def __init__(self, namespace, lines):
+        super().__init__(namespace, lines, "a constant field may use numbers, pi, inf, parameters and "
+                         "parameter-only definitions", allow_inf=True)
+
+    def _name(self, node):
+        if node.id in self.namespace and self.namespace[node.id] is None:
+            raise self.error(f"`{node.id}` is not a constant; bounds, initial and final values, horizon and guesses "
+                             "may use only numbers, pi, inf, parameters and parameter-only definitions", self._at(node))
+        if node.id == "t":
+            raise self.error("the time `t` is not a constant; it can be used in dynamics and costs only",
+                             self._at(node))
+        return super()._name(node)
+
+
+def _constant(parser: ExpressionParser, e: Expr, finite: bool) -> float:
+    value = parser.parse(e)
+    if value.free_symbols:
+        raise parser.error(f"`{e.text}` is not a constant", e.loc)
+    if value in (sympy.oo, -sympy.oo):
+        if finite:
+            raise parser.error("must be finite here (infinite values are only allowed in bounds)", e.loc)
+        return math.inf if value == sympy.oo else -math.inf
+    try:
+        number = complex(value.evalf(30))
+    except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+        raise parser.error(f"`{e.text}` does not evaluate to a number", e.loc) from None
+    if number.imag != 0 or math.isnan(number.real):
+        raise parser.error(f"`{e.text}` does not evaluate to a real number", e.loc)
+    if math.isinf(number.real) and finite:
+        raise parser.error("must be finite here (infinite values are only allowed in bounds)", e.loc)
+    return float(number.real)

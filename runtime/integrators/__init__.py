@@ -1,0 +1,34 @@
+"""Integrators: one-step methods with linearly interpolated controls, and rollouts over a uniform grid.
+
+Look one up by name with ``INTEGRATORS["rk4"]()``; see README.md in this folder to add one.
+"""
+
+from .adaptive import Adaptive as Adaptive
+from .base import AbstractIntegrator as AbstractIntegrator
+from .euler import Euler as Euler
+from .heun import Heun as Heun
+from .midpoint import Midpoint as Midpoint
+from .rk4 import RK4 as RK4
+from .rollout import rollout as rollout
+from .rollout import rollout_with_cost as rollout_with_cost
+
+# Name -> class, for the CLI. Every concrete integrator must be here (a test checks).
+INTEGRATORS: dict[str, type[AbstractIntegrator]] = {
+    "euler": Euler,
+    "heun": Heun,
+    "midpoint": Midpoint,
+    "rk4": RK4,
+    "adaptive": Adaptive,
+}
+
+__all__ = [
+    "AbstractIntegrator",
+    "Adaptive",
+    "Euler",
+    "Heun",
+    "INTEGRATORS",
+    "Midpoint",
+    "RK4",
+    "rollout",
+    "rollout_with_cost",
+]

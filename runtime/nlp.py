@@ -1,0 +1,86 @@
+"""The nonlinear program that a transcription produces and an NLP solver consumes.
+
+    minimise    F(z; data)
+    subject to  c_lower <= c(z; data) <= c_upper      (equalities have c_lower == c_upper)
+                z_lower <= z <= z_upper
+
+``data`` is a pytree of problem data that may change between solves without recompiling: the system's parameters
+and the initial state, ``{"params": {...}, "x0": Array}``. Everything shape-like (sizes, bounds, sparsity) is static.
+Batches of problems that differ only in ``data`` can therefore be solved by ``jax.vmap`` over ``data``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = ["NLP", "NLPResult"]
+
+Data = Any  # {"params": dict[str, Array], "x0": Array}
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class NLP:
+    """A transcribed optimal-control problem.
+
+    Attributes:
+        objective: F(z, data) -> scalar.
+        constraints: c(z, data) -> (n_constraints,). May be absent (None) when there are none.
+        c_lower, c_upper: constraint bounds, NumPy float64 (n_constraints,).
+        z_lower, z_upper: variable bounds, NumPy float64 (n_variables,); +-inf where unbounded.
+        initial_guess: data -> z0 (n_variables,).
+        unravel: (z, data) -> (times (K,), states (K, n_states), controls (K, n_controls)) on the transcription grid.
+        jacobian_sparsity: optional (rows, cols) of the structurally non-zero entries of dc/dz.
+        z_scale: optional positive (n_variables,) nominal magnitudes; solvers may work in z / z_scale.
+        name: a label for reports.
+    """
+
+    objective: Callable[[Any, Data], Any]
+    constraints: Callable[[Any, Data], Any] | None
+    c_lower: np.ndarray
+    c_upper: np.ndarray
+    z_lower: np.ndarray
+    z_upper: np.ndarray
+    initial_guess: Callable[[Data], Any]
+    unravel: Callable[[Any, Data], tuple[Any, Any, Any]]
+    jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None = None
+    z_scale: np.ndarray | None = None
+    name: str = "nlp"
+
+    @property
+    def n_variables(self) -> int:
+        return int(self.z_lower.shape[0])
+
+    @property
+    def n_constraints(self) -> int:
+        return int(self.c_lower.shape[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class NLPResult:
+    """What every NLP solver returns. ``success`` is True only for a converged, feasible solve.
+
+    Attributes:
+        z: the final iterate.
+        objective: F(z).
+        success: converged to the solver's tolerance and within the constraint tolerance.
+        status: solver-specific status code (int) and ``message`` its meaning.
+        iterations: iterations taken.
+        constraint_violation: max over constraint and bound violations at z.
+        multipliers: constraint multipliers if the solver provides them, else None.
+        compile_seconds: time spent tracing/compiling (first call only; 0 when cached).
+        solve_seconds: wall time of the solve itself.
+    """
+
+    z: Any
+    objective: float
+    success: bool
+    status: int
+    message: str
+    iterations: int
+    constraint_violation: float
+    multipliers: Any = None
+    compile_seconds: float = 0.0
+    solve_seconds: float = 0.0

@@ -1,0 +1,227 @@
+"""The abstract NLP solver and what every solver shares.
+
+Every solver consumes the :class:`~myriad.runtime.nlp.NLP`
+
+    minimise F(z; data)  subject to  c_lower <= c(z; data) <= c_upper,  z_lower <= z <= z_upper
+
+and returns an :class:`~myriad.runtime.nlp.NLPResult`. Three pieces are shared:
+
+* :func:`constraint_violation`, the one feasibility measure every solver reports and judges success by;
+* :class:`ScaledProblem`, the change of variables ``w = z / z_scale`` every solver works in;
+* :func:`cached`, a per-NLP cache of compiled functions, and :class:`CompiledFunction`, a jitted function compiled
+  ahead of time once per argument signature, so that a second solve of the same NLP with new ``data`` of the same
+  shapes never traces or compiles again and compile time is measured apart from solve time.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import time
+import weakref
+from typing import Any, Callable, Hashable, TypeVar
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..nlp import NLP, NLPResult
+
+__all__ = [
+    "AbstractNLPSolver",
+    "CompiledFunction",
+    "ScaledProblem",
+    "cached",
+    "canonical_data",
+    "constraint_violation",
+]
+
+T = TypeVar("T")
+
+
+class AbstractNLPSolver(abc.ABC):
+    """A configured NLP solver. Concrete solvers are frozen (hence hashable) dataclasses holding only options.
+
+    A solver object carries no per-problem state: everything compiled for an NLP lives in the cache of
+    :func:`cached`, keyed weakly by the NLP, so one solver object can solve many NLPs and the same NLP can be solved
+    repeatedly with new ``data`` without recompiling.
+    """
+
+    @abc.abstractmethod
+    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        """Solve ``nlp`` for the problem data ``data``.
+
+        Args:
+            nlp: the nonlinear program.
+            data: the problem data pytree, ``{"params": dict, "x0": Array}``; only its shapes are static.
+            z0: the starting point (n_variables,); ``nlp.initial_guess(data)`` when None.
+
+        Returns:
+            An :class:`NLPResult` in the original variables ``z``. ``success`` is True only for a solve that
+            converged to the solver's tolerance at a point within its constraint tolerance.
+        """
+
+
+# ---- feasibility ---------------------------------------------------------------------------------------------
+
+
+def constraint_violation(nlp: NLP, z: Any, c: Any | None) -> float:
+    """The largest violation of any constraint or variable bound (the infinity norm of the infeasibility).
+
+    .. math::
+        v(z) = \\max\\Big(0,\\ \\max_i (c^l_i - c_i(z)),\\ \\max_i (c_i(z) - c^u_i),
+                          \\ \\max_j (z^l_j - z_j),\\ \\max_j (z_j - z^u_j)\\Big)
+
+    Infinite bounds never contribute. A non-finite ``z`` or ``c`` gives ``inf``, so NaNs can never pass a
+    tolerance test.
+
+    Args:
+        nlp: supplies the bounds.
+        z: the point (n_variables,).
+        c: ``c(z)`` (n_constraints,), or None when the NLP has no constraints.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    parts = [np.zeros(1), nlp.z_lower - z, z - nlp.z_upper]
+    if c is not None and nlp.n_constraints:
+        c = np.asarray(c, dtype=np.float64)
+        parts += [nlp.c_lower - c, c - nlp.c_upper]
+        if not np.all(np.isfinite(c)):
+            return float("inf")
+    if not np.all(np.isfinite(z)):
+        return float("inf")
+    with np.errstate(invalid="ignore"):  # inf - inf never occurs (finite z and c), but keep NumPy quiet regardless
+        return float(np.nanmax(np.concatenate(parts)))
+
+
+# ---- variable scaling ----------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ScaledProblem:
+    """The NLP in scaled variables ``w = z / s`` with ``s = nlp.z_scale`` (all ones when absent).
+
+    .. math::
+        \\min_w F(s \\odot w)\\quad \\text{s.t.}\\quad c^l \\le c(s \\odot w) \\le c^u,\\quad
+        z^l / s \\le w \\le z^u / s
+
+    The constraint values, and hence the constraint multipliers, are the same in both variables; only the
+    gradient (``s * dF/dz``) and the bounds change. Solvers use the change of variables rather than a solver's
+    own user-scaling option so that all three solvers see the same well-scaled problem.
+
+    NOTE: this object holds the NLP's *functions and arrays*, never the NLP itself: it is stored as a value in
+    the weak-keyed cache, and a strong reference back to the key would keep every NLP alive forever.
+    """
+
+    objective: Callable[[Any, Any], Any]
+    constraints: Callable[[Any, Any], Any] | None
+    scale: np.ndarray
+    w_lower: np.ndarray
+    w_upper: np.ndarray
+    c_lower: np.ndarray
+    c_upper: np.ndarray
+
+    @classmethod
+    def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
+        n = nlp.n_variables
+        if nlp.z_scale is None:
+            scale = np.ones(n)
+        else:
+            scale = np.asarray(nlp.z_scale, dtype=np.float64)
+            if scale.shape != (n,) or not np.all(np.isfinite(scale)) or np.any(scale <= 0):
+                raise ValueError(f"{nlp.name}: z_scale must be finite and positive with shape ({n},)")
+        f, c = nlp.objective, nlp.constraints
+        if c is None and nlp.n_constraints:
+            raise ValueError(f"{nlp.name}: constraints is None but c_lower has {nlp.n_constraints} entries")
+        s = jnp.asarray(scale)
+        return cls(
+            objective=lambda w, data: f(w * s, data),
+            constraints=None if nlp.n_constraints == 0 else (lambda w, data: c(w * s, data)),
+            scale=scale,
+            w_lower=np.asarray(nlp.z_lower, dtype=np.float64) / scale,
+            w_upper=np.asarray(nlp.z_upper, dtype=np.float64) / scale,
+            c_lower=np.asarray(nlp.c_lower, dtype=np.float64),
+            c_upper=np.asarray(nlp.c_upper, dtype=np.float64),
+        )
+
+    @property
+    def n_variables(self) -> int:
+        return int(self.scale.shape[0])
+
+    @property
+    def n_constraints(self) -> int:
+        return 0 if self.constraints is None else int(self.c_lower.shape[0])
+
+    def to_w(self, z: Any) -> np.ndarray:
+        return np.asarray(z, dtype=np.float64) / self.scale
+
+    def to_z(self, w: Any) -> np.ndarray:
+        return np.asarray(w, dtype=np.float64) * self.scale
+
+
+# ---- compiled functions and the per-NLP cache ------------------------------------------------------------------
+
+
+def canonical_data(data: Any) -> Any:
+    """``data`` as device arrays with concrete (never weak) dtypes.
+
+    A Python float and a float64 array trace to different signatures (weak vs strong type); canonicalising first
+    means a solve with ``{"k": 1.0}`` and one with ``{"k": jnp.float64(2.0)}`` share one compiled program.
+    """
+    return jax.tree.map(lambda x: jax.device_put(np.asarray(x)), data)
+
+
+def _signature(args: tuple) -> Hashable:
+    leaves, treedef = jax.tree.flatten(args)
+    return treedef, tuple((np.shape(x), np.result_type(x)) for x in leaves)
+
+
+class CompiledFunction:
+    """``jax.jit(fn)`` compiled ahead of time (``.lower(...).compile()``) once per argument signature.
+
+    Calling an AOT-compiled executable can never retrace, so the compile cost is paid, and measured, exactly once
+    per signature, and calls with arguments of another shape fail loudly instead of recompiling silently.
+    """
+
+    def __init__(self, fn: Callable, **jit_kwargs: Any):
+        self._jitted = jax.jit(fn, **jit_kwargs)
+        self._executables: dict[Hashable, Any] = {}
+
+    def compile(self, *args: Any) -> float:
+        """Compile for the signature of ``args`` unless already done; returns the seconds spent (0 if cached)."""
+        key = _signature(args)
+        if key in self._executables:
+            return 0.0
+        start = time.perf_counter()
+        self._executables[key] = self._jitted.lower(*args).compile()
+        return time.perf_counter() - start
+
+    def __call__(self, *args: Any) -> Any:
+        return self._executables[_signature(args)](*args)
+
+    def executable(self, *args: Any) -> Callable:
+        """The compiled executable for the signature of ``args`` (compile first): skips the lookup per call."""
+        return self._executables[_signature(args)]
+
+
+_CACHE: "weakref.WeakKeyDictionary[NLP, dict[Hashable, Any]]" = weakref.WeakKeyDictionary()
+
+
+def cached(nlp: NLP, key: Hashable, build: Callable[[], T]) -> T:
+    """The object ``build()`` made for ``(nlp, key)``, built on first use and kept while ``nlp`` is alive.
+
+    ``key`` names what was built (typically the solver class and the options that change the compiled code).
+    ``build`` must not capture ``nlp`` itself (see :class:`ScaledProblem`), or the entry would never be freed.
+    """
+    per_nlp = _CACHE.setdefault(nlp, {})
+    if key not in per_nlp:
+        per_nlp[key] = build()
+    return per_nlp[key]
+
+
+def initial_point(nlp: NLP, data: Any, z0: Any | None) -> np.ndarray:
+    """``z0``, or the NLP's initial guess, as a float64 NumPy vector of the right length."""
+    z = nlp.initial_guess(data) if z0 is None else z0
+    z = np.asarray(z, dtype=np.float64)
+    if z.shape != (nlp.n_variables,):
+        raise ValueError(f"{nlp.name}: z0 has shape {z.shape}, expected ({nlp.n_variables},)")
+    return z

@@ -1,0 +1,280 @@
+"""IPOPT (interior-point filter line search) through cyipopt, with exact JAX derivatives."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Literal, Mapping, final
+
+import cyipopt
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..nlp import NLP, NLPResult
+from .base import (
+    AbstractNLPSolver,
+    CompiledFunction,
+    ScaledProblem,
+    cached,
+    canonical_data,
+    constraint_violation,
+    initial_point,
+)
+from .sparse import compressed_hessian_fn, compressed_jacobian_fn, dense_hessian_fn, hessian_structure
+
+__all__ = ["Ipopt"]
+
+# IPOPT reads bounds at or beyond +-1e19 (nlp_{lower,upper}_bound_inf) as absent.
+_IPOPT_INF = 1e20
+_HESSIAN_MODES = ("exact", "limited-memory")
+# Statuses that mean "converged"; every other status (including 6, Feasible_Point_Found) is a failure.
+_CONVERGED = {0: "Solve_Succeeded", 1: "Solved_To_Acceptable_Level"}
+
+
+@final
+@dataclasses.dataclass(frozen=True)
+class Ipopt(AbstractNLPSolver):
+    """IPOPT, the primal-dual interior-point method, through cyipopt's low-level ``Problem`` interface.
+
+    IPOPT solves the barrier problems
+
+    .. math::
+        \\min_{w}\\ F(w) - \\mu \\sum_j \\big(\\ln(w_j - w^l_j) + \\ln(w^u_j - w_j)\\big)
+        \\quad\\text{s.t.}\\quad c(w) - s = 0,\\ c^l \\le s \\le c^u
+
+    for a decreasing barrier parameter ``mu`` by Newton steps on the primal-dual KKT system, globalised by a filter
+    line search. It needs the gradient ``dF/dw``, the constraint Jacobian ``dc/dw`` as sparse triplets and (unless
+    ``hessian="limited-memory"``) the lower triangle of the Hessian of the Lagrangian
+    ``sigma * d2F/dw2 + sum_i lambda_i d2c_i/dw2``; all are exact JAX derivatives, jit-compiled once per NLP.
+
+    * Variables: IPOPT works in ``w = z / nlp.z_scale`` (see :class:`ScaledProblem`) rather than through its
+      user-scaling option, so that every solver sees the same problem; IPOPT's own gradient-based scaling of the
+      objective and constraints stays on.
+    * Jacobian: the triplets of ``nlp.jacobian_sparsity`` (deduplicated), evaluated by coloured JVPs; all ``m * n``
+      entries when no sparsity is given.
+    * Hessian: the pattern is detected numerically once per NLP, as the union of the non-zeros of the dense Lagrangian
+      Hessian at two random points near the first starting point with random multipliers (plus the diagonal);
+      values then come from coloured Hessian-vector products. An entry is missed only if it vanishes at both random
+      points for the first solve's ``data`` (e.g. a term multiplied by a parameter that is exactly zero there);
+      pass ``hessian="limited-memory"`` for such problems.
+    * Bounds are kept exact (``bound_relax_factor = 0``, ``honor_original_bounds = yes``): a solver that steps a hair
+      outside a control box stalls on dynamics that are undefined there.
+
+    Attributes:
+        tol: IPOPT's ``tol``, the (scaled) KKT error at which it stops.
+        max_iter: IPOPT's ``max_iter``.
+        hessian: ``"exact"`` or ``"limited-memory"`` (L-BFGS; no second derivatives are compiled).
+        print_level: IPOPT's ``print_level`` (0 silent, 5 the usual log).
+        constr_viol_tol: the largest constraint or bound violation a successful solve may have; also passed to
+            IPOPT as ``constr_viol_tol``.
+        options: further IPOPT options, ``{name: value}``; they override the above. Stored as a sorted tuple of
+            pairs so that the solver stays hashable.
+    """
+
+    tol: float = 1e-8
+    max_iter: int = 3000
+    hessian: Literal["exact", "limited-memory"] = "exact"
+    print_level: int = 0
+    constr_viol_tol: float = 1e-6
+    options: Mapping[str, Any] | tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self):
+        if self.hessian not in _HESSIAN_MODES:
+            raise ValueError(f"Ipopt(hessian={self.hessian!r}): expected one of {_HESSIAN_MODES}")
+        if not self.tol > 0 or not self.constr_viol_tol > 0:
+            raise ValueError("Ipopt: tol and constr_viol_tol must be positive")
+        if self.max_iter < 0:
+            raise ValueError("Ipopt: max_iter must be non-negative")
+        options = self.options.items() if isinstance(self.options, Mapping) else self.options
+        object.__setattr__(self, "options", tuple(sorted((str(k), v) for k, v in options)))
+
+    def ipopt_options(self) -> dict[str, Any]:
+        """The options handed to IPOPT, in order of precedence (later wins)."""
+        return {
+            "tol": float(self.tol),
+            "max_iter": int(self.max_iter),
+            "print_level": int(self.print_level),
+            "sb": "yes",  # no banner
+            "constr_viol_tol": float(self.constr_viol_tol),
+            "bound_relax_factor": 0.0,
+            "honor_original_bounds": "yes",
+            "hessian_approximation": self.hessian,
+            **dict(self.options),
+        }
+
+    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        exact = self.hessian == "exact"
+        fns = cached(nlp, ("ipopt", exact), lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity))
+        problem = fns.problem
+        data = canonical_data(data)
+        w0 = problem.to_w(initial_point(nlp, data, z0))
+        compile_seconds = fns.prepare(w0, data, exact)
+
+        callbacks = _Callbacks(fns, w0, data, exact)
+        ipopt = cyipopt.Problem(
+            n=problem.n_variables,
+            m=problem.n_constraints,
+            problem_obj=callbacks,
+            lb=_finite(problem.w_lower),
+            ub=_finite(problem.w_upper),
+            cl=_finite(problem.c_lower),
+            cu=_finite(problem.c_upper),
+        )
+        for name, value in self.ipopt_options().items():
+            ipopt.add_option(name, value)
+        start = time.perf_counter()
+        w, info = ipopt.solve(w0)
+        solve_seconds = time.perf_counter() - start
+
+        z = problem.to_z(w)
+        c = np.asarray(info["g"]) if problem.n_constraints else None
+        violation = constraint_violation(nlp, z, c)
+        objective = float(info["obj_val"])
+        status = int(info["status"])
+        message = info["status_msg"]
+        message = message.decode() if isinstance(message, bytes) else str(message)
+        success = status in _CONVERGED and violation <= self.constr_viol_tol and np.isfinite(objective)
+        if status in _CONVERGED and not success:
+            message = (
+                f"IPOPT reported {_CONVERGED[status]}, but the constraint violation {violation:.3g} exceeds "
+                f"constr_viol_tol={self.constr_viol_tol:.3g} (or the objective is not finite): {message}"
+            )
+        return NLPResult(
+            z=z,
+            objective=objective,
+            success=bool(success),
+            status=status,
+            message=message,
+            iterations=callbacks.iterations,
+            constraint_violation=violation,
+            multipliers=np.asarray(info["mult_g"]) if problem.n_constraints else None,
+            compile_seconds=compile_seconds,
+            solve_seconds=solve_seconds,
+        )
+
+
+def _finite(bounds: np.ndarray) -> np.ndarray:
+    return np.clip(np.asarray(bounds, dtype=np.float64), -_IPOPT_INF, _IPOPT_INF)
+
+
+class _Derivatives:
+    """The compiled functions IPOPT calls, for one NLP (in scaled variables ``w``)."""
+
+    def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None):
+        self.problem = problem
+        f, c = problem.objective, problem.constraints
+        n, m = problem.n_variables, problem.n_constraints
+        self.objective = CompiledFunction(f)
+        self.gradient = CompiledFunction(jax.grad(f))
+
+        if m:
+            self.constraints = CompiledFunction(c)
+            if jacobian_sparsity is not None:
+                rows, cols = _validated_sparsity(jacobian_sparsity, (m, n))
+                self.jacobian = CompiledFunction(compressed_jacobian_fn(c, rows, cols, (m, n)))
+            else:
+                # Dense: reverse mode needs m passes, forward mode n; take the cheaper.
+                rows, cols = (idx.ravel() for idx in np.indices((m, n)))
+                jac = jax.jacrev(c) if m < n else jax.jacfwd(c)
+                self.jacobian = CompiledFunction(lambda w, data: jac(w, data).reshape(-1))
+            self.jacobian_structure = (rows, cols)
+
+        def lagrangian_gradient(w, sigma, lam, data):
+            def lagrangian(w_):
+                value = sigma * f(w_, data)
+                return value + jnp.dot(lam, c(w_, data)) if m else value
+
+            return jax.grad(lagrangian)(w)
+
+        self._lagrangian_gradient = lagrangian_gradient
+        self.hessian: CompiledFunction | None = None  # built by `prepare`: its pattern needs a point and data
+        self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None
+
+    def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
+        """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
+        m = self.problem.n_constraints
+        seconds = self.objective.compile(w0, data) + self.gradient.compile(w0, data)
+        if m:
+            seconds += self.constraints.compile(w0, data) + self.jacobian.compile(w0, data)
+        if exact:
+            if self.hessian is None:
+                start = time.perf_counter()
+                self._build_hessian(w0, data)
+                seconds += time.perf_counter() - start
+            seconds += self.hessian.compile(w0, np.float64(1.0), np.zeros(m), data)
+        return seconds
+
+    def _build_hessian(self, w0: np.ndarray, data: Any) -> None:
+        """Detect the Hessian pattern at random points near ``w0`` (see :class:`Ipopt`) and compile its values."""
+        p, n, m = self.problem, self.problem.n_variables, self.problem.n_constraints
+        dense = jax.jit(dense_hessian_fn(self._lagrangian_gradient, n))
+        rng = np.random.default_rng(0)  # deterministic: the same NLP always gets the same pattern
+        samples = []
+        for _ in range(2):
+            w = np.clip(w0 + 0.1 * (1.0 + np.abs(w0)) * rng.standard_normal(n), p.w_lower, p.w_upper)
+            lam = rng.uniform(1.0, 2.0, m) * rng.choice([-1.0, 1.0], m)
+            samples.append(np.asarray(dense(w, np.float64(1.0), lam, data)))
+        rows, cols = hessian_structure(samples, n)
+        self.hessian_structure = (rows, cols)
+        self.hessian = CompiledFunction(compressed_hessian_fn(self._lagrangian_gradient, rows, cols, n))
+
+
+def _validated_sparsity(sparsity: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    rows, cols = (np.asarray(a, dtype=np.int64).ravel() for a in sparsity)
+    if rows.shape != cols.shape:
+        raise ValueError(f"jacobian_sparsity: rows and cols differ in length ({rows.size} vs {cols.size})")
+    if rows.size and (rows.min() < 0 or rows.max() >= shape[0] or cols.min() < 0 or cols.max() >= shape[1]):
+        raise ValueError(f"jacobian_sparsity: an entry lies outside the {shape[0]} x {shape[1]} Jacobian")
+    # IPOPT sums duplicate triplets; every duplicate would be counted twice. Keep each entry once, row-major.
+    flat = np.unique(rows * shape[1] + cols)
+    return flat // shape[1], flat % shape[1]
+
+
+class _Callbacks:
+    """The object cyipopt calls back into: NumPy in, NumPy out, ``data`` fixed for the solve."""
+
+    def __init__(self, fns: _Derivatives, w0: np.ndarray, data: Any, exact: bool):
+        # Bind the executables once: IPOPT makes several calls per iteration, and looking the signature up in
+        # CompiledFunction.__call__ would flatten `data` every time.
+        self._data = data
+        self._f = fns.objective.executable(w0, data)
+        self._g = fns.gradient.executable(w0, data)
+        self.iterations = 0
+        m = fns.problem.n_constraints
+        if m:
+            self._c = fns.constraints.executable(w0, data)
+            self._jac = fns.jacobian.executable(w0, data)
+            self._jac_structure = fns.jacobian_structure
+        else:
+            empty = np.zeros(0)
+            self._c = self._jac = lambda w, data: empty
+            self._jac_structure = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        if exact:
+            self._hess = fns.hessian.executable(w0, np.float64(1.0), np.zeros(m), data)
+            self._hess_structure = fns.hessian_structure
+            # cyipopt finds the callbacks by attribute; without `hessian`, IPOPT must approximate it.
+            self.hessian = self._hessian
+            self.hessianstructure = lambda: self._hess_structure
+
+    def objective(self, w):
+        return float(self._f(w, self._data))
+
+    def gradient(self, w):
+        return np.asarray(self._g(w, self._data))
+
+    def constraints(self, w):
+        return np.asarray(self._c(w, self._data))
+
+    def jacobian(self, w):
+        return np.asarray(self._jac(w, self._data))
+
+    def jacobianstructure(self):
+        return self._jac_structure
+
+    def _hessian(self, w, lagrange, obj_factor):
+        return np.asarray(self._hess(w, np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64), self._data))
+
+    def intermediate(self, alg_mod, iter_count, *args):
+        self.iterations = int(iter_count)
+        return True

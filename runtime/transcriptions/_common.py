@@ -1,0 +1,140 @@
+"""Helpers shared by the transcriptions and the sweep: data, scaling, initial guesses, sparsity patterns."""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..system import System
+
+__all__ = [
+    "default_data",
+    "nominal_scale",
+    "state_scale",
+    "control_scale",
+    "guess_controls",
+    "guess_states",
+    "sparsity",
+    "final_value_rows",
+    "bounded_free_states",
+]
+
+
+def default_data(system: System, params: dict | None = None, x0: Any = None) -> dict[str, Any]:
+    """The ``data`` pytree every NLP function takes: ``{"params": dict[str, Array], "x0": Array}``.
+
+    Args:
+        system: the system.
+        params: parameter values; missing names take the spec's defaults.
+        x0: the initial state; defaults to ``system.x0``.
+    """
+    p = system.default_params(jnp.float64)
+    if params is not None:
+        unknown = set(params) - set(p)
+        if unknown:
+            raise KeyError(f"{system.name}: unknown parameters {sorted(unknown)}; expected some of {list(p)}")
+        p.update({k: jnp.asarray(v) for k, v in params.items()})
+    x0 = np.asarray(system.x0, dtype=np.float64) if x0 is None else x0
+    return {"params": p, "x0": jnp.asarray(x0)}
+
+
+def nominal_scale(lower: np.ndarray, upper: np.ndarray, fallback: np.ndarray | None = None) -> np.ndarray:
+    """Nominal magnitudes: max(|lo|, |hi|) over the finite bounds, else |fallback|, else 1.
+
+    A zero from the bounds (e.g. the single finite bound of [0, inf)) falls through to the fallback, so that a
+    population with bounds [0, inf) and x0 = 1000 gets scale 1000, not 1.
+    """
+    lower = np.asarray(lower, dtype=np.float64)
+    upper = np.asarray(upper, dtype=np.float64)
+    mags = np.stack([np.where(np.isfinite(lower), np.abs(lower), 0.0), np.where(np.isfinite(upper), np.abs(upper), 0.0)])
+    scale = mags.max(axis=0)
+    if fallback is not None:
+        fb = np.abs(np.asarray(fallback, dtype=np.float64))
+        scale = np.where(scale > 0.0, scale, fb)
+    return np.where(scale > 0.0, scale, 1.0)
+
+
+def state_scale(system: System) -> np.ndarray:
+    """Nominal state magnitudes (n_states,): from finite state bounds, else |x0|, else 1."""
+    a = system.arrays()
+    return nominal_scale(a["x_lower"], a["x_upper"], a["x0"])
+
+
+def control_scale(system: System) -> np.ndarray:
+    """Nominal control magnitudes (n_controls,): from finite control bounds, else 1."""
+    a = system.arrays()
+    return nominal_scale(a["u_lower"], a["u_upper"])
+
+
+def guess_controls(system: System, k: int) -> np.ndarray:
+    """Controls at the middle of their bounds where both are finite, else 0 clipped into the bounds: (k, m)."""
+    a = system.arrays()
+    lo, hi = a["u_lower"], a["u_upper"]
+    both = np.isfinite(lo) & np.isfinite(hi)
+    mid = np.where(both, 0.5 * (np.where(both, lo, 0.0) + np.where(both, hi, 0.0)), np.clip(0.0, lo, hi))
+    return np.tile(mid, (k, 1))
+
+
+def guess_states(system: System, x0: Any, times: np.ndarray) -> Any:
+    """States moving linearly from x0 to the required final values, free ones held at x0, clipped to the bounds.
+
+    Args:
+        system: the system.
+        x0: initial state (n,), possibly traced.
+        times: (K,) times in [0, T].
+
+    Returns:
+        (K, n) states.
+    """
+    a = system.arrays()
+    x0 = jnp.asarray(x0)
+    s = jnp.asarray(np.asarray(times, dtype=np.float64) / system.horizon)[:, None]
+    mask = jnp.asarray(system.final_mask)
+    target = jnp.where(mask, jnp.asarray(np.nan_to_num(system.final_values)), x0)
+    xs = x0[None, :] + s * (target - x0)[None, :]
+    return jnp.clip(xs, jnp.asarray(a["x_lower"]), jnp.asarray(a["x_upper"]))
+
+
+def sparsity(blocks: Iterable[tuple[np.ndarray, np.ndarray, bool]]) -> tuple[np.ndarray, np.ndarray]:
+    """A Jacobian pattern from blocks of structurally non-zero entries.
+
+    Args:
+        blocks: ``(rows, cols, diagonal)`` triples; ``diagonal=False`` marks every (row, col) pair of the two index
+            arrays, ``diagonal=True`` only the pairs (rows[i], cols[i]).
+
+    Returns:
+        ``(rows, cols)``, int64, without duplicates, sorted by row then column.
+    """
+    rs, cs = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+    for r, c, diagonal in blocks:
+        r = np.asarray(r, dtype=np.int64)
+        c = np.asarray(c, dtype=np.int64)
+        if diagonal:
+            rs.append(r)
+            cs.append(c)
+        else:
+            rr, cc = np.meshgrid(r, c, indexing="ij")
+            rs.append(rr.ravel())
+            cs.append(cc.ravel())
+    pairs = np.unique(np.stack([np.concatenate(rs), np.concatenate(cs)], axis=1), axis=0)
+    return pairs[:, 0].copy(), pairs[:, 1].copy()
+
+
+def final_value_rows(system: System) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the states with a required final value, and those values."""
+    fixed = np.flatnonzero(system.final_mask)
+    return fixed, system.final_values[fixed]
+
+
+def bounded_free_states(system: System) -> np.ndarray:
+    """States with at least one finite bound and no required final value.
+
+    A state whose final value is required gets no bound row: the equality already pins it, and a duplicate active
+    row (e.g. Predator Prey's z(T) = B with z <= B) would break the linear independence of the constraint
+    gradients.
+    """
+    a = system.arrays()
+    finite = np.isfinite(a["x_lower"]) | np.isfinite(a["x_upper"])
+    return np.flatnonzero(finite & ~system.final_mask)

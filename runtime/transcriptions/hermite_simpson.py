@@ -1,0 +1,144 @@
+"""Hermite-Simpson direct collocation, compressed form."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..nlp import NLP
+from ..system import System
+from ._common import control_scale, final_value_rows, guess_controls, guess_states, sparsity, state_scale
+from .base import AbstractTranscription
+
+__all__ = ["HermiteSimpson"]
+
+
+@dataclasses.dataclass(frozen=True)
+class HermiteSimpson(AbstractTranscription):
+    """Hermite-Simpson collocation on a uniform grid of N intervals (order 4), in compressed form.
+
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h (x_0 = data["x0"]), and a control
+    u_{k+1/2} at each interval midpoint. The midpoint state is *not* a decision: it is the cubic Hermite
+    interpolant of the two nodes,
+
+        x_{k+1/2} = (x_k + x_{k+1}) / 2 + (h / 8)(f_k - f_{k+1}),      f_{k+1/2} = f(x_{k+1/2}, u_{k+1/2}, t_k + h/2),
+
+    and with the Simpson rule for both the dynamics and the cost,
+
+        minimise    phi(x_N) + (h / 6) sum_k (L_k + 4 L_{k+1/2} + L_{k+1})
+        subject to  (x_{k+1} - x_k - (h / 6)(f_k + 4 f_{k+1/2} + f_{k+1})) / s = 0     k = 0..N-1
+                    x_N,i = x_final,i  (required final values)
+                    x_lower <= x_k <= x_upper,  u_lower <= u_k, u_{k+1/2} <= u_upper   (bounds on every node).
+
+    NOTE: the compressed form (Kelly 2017, sec. 4) has n fewer variables and n fewer constraints per interval than
+    the separated form, which matters for the dense solvers; the price is that state bounds hold at the nodes only,
+    not at the interpolated midpoints, and each defect block is dense in (x_k, x_{k+1}).
+
+    Layout of z: ``[x_1..x_N (N n), u_0..u_N ((N + 1) m), u_{1/2}..u_{N-1/2} (N m)]``. ``unravel`` returns the
+    2N + 1 points of the uniform half-step grid (nodes and midpoints interleaved), so a solution can be
+    re-simulated with :func:`~myriad.runtime.simulate.simulate` on that grid.
+
+    Attributes:
+        intervals: N.
+
+    References:
+        M. Kelly, "An introduction to trajectory optimization: how to do your own direct collocation",
+        SIAM Review 59(4), 2017.
+    """
+
+    intervals: int = 50
+
+    def __post_init__(self):
+        if self.intervals < 1:
+            raise ValueError(f"HermiteSimpson: intervals must be at least 1, got {self.intervals}")
+
+    def transcribe(self, system: System) -> NLP:
+        N = self.intervals
+        n, m = system.n_states, system.n_controls
+        T = float(system.horizon)
+        h = T / N
+        times = np.linspace(0.0, T, N + 1)
+        mid_times = times[:-1] + 0.5 * h
+        arrays = system.arrays()
+        fixed, final = final_value_rows(system)
+        sx, su = state_scale(system), control_scale(system)
+        nX, nU = N * n, (N + 1) * m
+
+        def split(z, data):
+            X = jnp.reshape(z[:nX], (N, n))
+            xs = jnp.concatenate([jnp.asarray(data["x0"])[None], X], axis=0)
+            return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), jnp.reshape(z[nX + nU :], (N, m))
+
+        def collocate(z, data):
+            params = data["params"]
+            f = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))
+            xs, us, ums = split(z, data)
+            fs = f(xs, us, jnp.asarray(times))
+            xms = 0.5 * (xs[:-1] + xs[1:]) + (h / 8.0) * (fs[:-1] - fs[1:])
+            return xs, us, ums, xms, fs, f(xms, ums, jnp.asarray(mid_times))
+
+        def objective(z, data):
+            params = data["params"]
+            L = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))
+            xs, us, ums, xms, _, _ = collocate(z, data)
+            Ls = L(xs, us, jnp.asarray(times))
+            Lms = L(xms, ums, jnp.asarray(mid_times))
+            quad = (h / 6.0) * jnp.sum(Ls[:-1] + 4.0 * Lms + Ls[1:])
+            return quad + system.terminal_cost(xs[-1], T, params)
+
+        def constraints(z, data):
+            xs, _, _, _, fs, fms = collocate(z, data)
+            defects = (xs[1:] - xs[:-1] - (h / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / sx
+            return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final])
+
+        def unravel(z, data):
+            xs, us, ums, xms, _, _ = collocate(z, data)
+
+            def interleave(nodes, mids):
+                both = jnp.concatenate([nodes[:-1, None], mids[:, None]], axis=1)  # (N, 2, d)
+                return jnp.concatenate([jnp.reshape(both, (2 * N, -1)), nodes[-1:]], axis=0)
+
+            return jnp.asarray(np.linspace(0.0, T, 2 * N + 1)), interleave(xs, xms), interleave(us, ums)
+
+        def initial_guess(data):
+            X = guess_states(system, data["x0"], times[1:])
+            U = guess_controls(system, 2 * N + 1)
+            return jnp.concatenate([X.ravel(), jnp.asarray(U[: N + 1].ravel()), jnp.asarray(U[N + 1 :].ravel())])
+
+        blocks = []
+        for k in range(N):
+            rows = k * n + np.arange(n)
+            cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
+            if k > 0:
+                cols.append(np.arange((k - 1) * n, k * n))  # x_k
+            cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
+            cols.append(nX + nU + np.arange(k * m, (k + 1) * m))  # u_{k+1/2}
+            blocks.append((rows, np.concatenate(cols), False))
+        for r, i in enumerate(fixed):
+            blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+
+        return NLP(
+            objective=objective,
+            constraints=constraints,
+            c_lower=np.concatenate([np.zeros(N * n), final]),
+            c_upper=np.concatenate([np.zeros(N * n), final]),
+            z_lower=np.concatenate([np.tile(arrays["x_lower"], N), np.tile(arrays["u_lower"], 2 * N + 1)]),
+            z_upper=np.concatenate([np.tile(arrays["x_upper"], N), np.tile(arrays["u_upper"], 2 * N + 1)]),
+            initial_guess=initial_guess,
+            unravel=unravel,
+            jacobian_sparsity=sparsity(blocks),
+            z_scale=np.concatenate([np.tile(sx, N), np.tile(su, 2 * N + 1)]),
+            name=f"{system.name}/hermite_simpson(N={N})",
+        )
+
+    def sample(self, system, states, controls):
+        N = self.intervals
+        times = np.linspace(0.0, float(system.horizon), N + 1)
+        mids = times[:-1] + 0.5 * (times[1] - times[0])
+        X = np.asarray(states(times[1:]), dtype=np.float64)
+        U = np.asarray(controls(times), dtype=np.float64)
+        Um = np.asarray(controls(mids), dtype=np.float64)
+        return np.concatenate([X.ravel(), U.ravel(), Um.ravel()])

@@ -1,0 +1,141 @@
+"""Multiple shooting: node states and controls are decisions; continuity between intervals is a constraint."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..integrators import RK4, AbstractIntegrator, rollout, rollout_with_cost
+from ..nlp import NLP
+from ..system import System
+from ._common import control_scale, final_value_rows, guess_controls, guess_states, sparsity, state_scale
+from .base import AbstractTranscription
+
+__all__ = ["MultipleShooting"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MultipleShooting(AbstractTranscription):
+    """Direct multiple shooting with M intervals of S integrator steps each (N = M S steps in all).
+
+    Decision: the states X_1..X_M at the shooting nodes t_j = j T / M (X_0 = data["x0"] is not a decision) and the
+    controls u_0..u_N at *every* step node t_k = k T / N, linearly interpolated in between, so the control
+    parametrisation is the same as single shooting with N intervals and the two have the same optimum when they
+    share an integrator. On interval j the integrator runs S steps from X_j, giving x_end,j, and
+
+        minimise    phi(X_M) + sum_j C_j,          C_j = int over interval j of L dt (extra state, same integrator)
+        subject to  (x_end,j - X_{j+1}) / s = 0    j = 0..M-1   (continuity defects, divided by the state scale s)
+                    X_M,i = x_final,i               for every state with a required final value
+                    x_lower <= X_j <= x_upper,  u_lower <= u_k <= u_upper   (bounds on every node)
+
+    Layout of z: ``[X_1..X_M (M n), u_0..u_N ((N + 1) m)]``. The constraint Jacobian is block-banded: defect j
+    depends densely on X_j and on the S + 1 controls of interval j, and only diagonally on X_{j+1}.
+
+    Attributes:
+        intervals: M, the number of shooting intervals.
+        steps_per_interval: S, integrator steps (and control intervals) per shooting interval.
+        integrator: the one-step method.
+    """
+
+    intervals: int = 20
+    steps_per_interval: int = 5
+    integrator: AbstractIntegrator = RK4()
+
+    def __post_init__(self):
+        if self.intervals < 1 or self.steps_per_interval < 1:
+            raise ValueError(
+                f"MultipleShooting: intervals and steps_per_interval must be at least 1, "
+                f"got {self.intervals} and {self.steps_per_interval}"
+            )
+
+    def transcribe(self, system: System) -> NLP:
+        M, S = self.intervals, self.steps_per_interval
+        N = M * S
+        n, m = system.n_states, system.n_controls
+        T = float(system.horizon)
+        h = T / N
+        times = np.linspace(0.0, T, N + 1)
+        node_times = times[::S]  # shooting nodes t_0..t_M
+        window = np.arange(M)[:, None] * S + np.arange(S + 1)[None, :]  # control nodes of each interval, (M, S+1)
+        arrays = system.arrays()
+        fixed, final = final_value_rows(system)
+        sx, su = state_scale(system), control_scale(system)
+        integrator = self.integrator
+        nX = M * n
+
+        def split(z):
+            return jnp.reshape(z[:nX], (M, n)), jnp.reshape(z[nX:], (N + 1, m))
+
+        def fields(params):
+            f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
+            L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
+            return f, L
+
+        def starts_and_windows(z, data):
+            X, U = split(z)
+            starts = jnp.concatenate([jnp.asarray(data["x0"])[None], X[:-1]], axis=0)
+            return X, U, starts, U[window]
+
+        def objective(z, data):
+            params = data["params"]
+            f, L = fields(params)
+            X, _, starts, Uw = starts_and_windows(z, data)
+            shoot = lambda x, t, u: rollout_with_cost(integrator, f, L, x, t, h, u)[1][-1]  # noqa: E731
+            costs = jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw)
+            return jnp.sum(costs) + system.terminal_cost(X[-1], T, params)
+
+        def constraints(z, data):
+            f, _ = fields(data["params"])
+            X, _, starts, Uw = starts_and_windows(z, data)
+            shoot = lambda x, t, u: rollout(integrator, f, x, t, h, u)[-1]  # noqa: E731
+            ends = jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw)
+            defects = (ends - X) / sx
+            return jnp.concatenate([defects.ravel(), X[-1, fixed] - final])
+
+        def unravel(z, data):
+            f, _ = fields(data["params"])
+            X, U, starts, Uw = starts_and_windows(z, data)
+            shoot = lambda x, t, u: rollout(integrator, f, x, t, h, u)  # noqa: E731
+            xs = jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw)  # (M, S+1, n)
+            # Each interval's own start is the node variable; its end is dropped for the next node (any defect shows
+            # as a jump there, not hidden by overwriting the node).
+            states = jnp.concatenate([jnp.reshape(xs[:, :S], (N, n)), X[-1:]], axis=0)
+            return jnp.asarray(times), states, U
+
+        def initial_guess(data):
+            X = guess_states(system, data["x0"], node_times[1:])
+            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel())])
+
+        blocks = []
+        for j in range(M):
+            rows = j * n + np.arange(n)
+            if j > 0:
+                blocks.append((rows, (j - 1) * n + np.arange(n), False))
+            blocks.append((rows, j * n + np.arange(n), True))
+            blocks.append((rows, nX + (window[j][:, None] * m + np.arange(m)).ravel(), False))
+        for r, i in enumerate(fixed):
+            blocks.append((np.array([M * n + r]), np.array([(M - 1) * n + i]), True))
+
+        return NLP(
+            objective=objective,
+            constraints=constraints,
+            c_lower=np.concatenate([np.zeros(M * n), final]),
+            c_upper=np.concatenate([np.zeros(M * n), final]),
+            z_lower=np.concatenate([np.tile(arrays["x_lower"], M), np.tile(arrays["u_lower"], N + 1)]),
+            z_upper=np.concatenate([np.tile(arrays["x_upper"], M), np.tile(arrays["u_upper"], N + 1)]),
+            initial_guess=initial_guess,
+            unravel=unravel,
+            jacobian_sparsity=sparsity(blocks),
+            z_scale=np.concatenate([np.tile(sx, M), np.tile(su, N + 1)]),
+            name=f"{system.name}/multiple_shooting(M={M}, S={S}, {type(integrator).__name__})",
+        )
+
+    def sample(self, system, states, controls):
+        S = self.steps_per_interval
+        times = np.linspace(0.0, float(system.horizon), self.intervals * S + 1)
+        X = np.asarray(states(times[S::S]), dtype=np.float64)
+        U = np.asarray(controls(times), dtype=np.float64)
+        return np.concatenate([X.ravel(), U.ravel()])

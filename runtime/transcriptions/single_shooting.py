@@ -1,0 +1,107 @@
+"""Single shooting: the controls are the only decisions; the states come from one rollout."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost
+from ..nlp import NLP
+from ..system import System
+from ._common import bounded_free_states, control_scale, final_value_rows, guess_controls, state_scale
+from .base import AbstractTranscription
+
+__all__ = ["SingleShooting"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SingleShooting(AbstractTranscription):
+    """Direct single shooting on a uniform grid of N control intervals (the published setting by default).
+
+    Decision: the controls u_0..u_N at the N + 1 nodes t_k = k T / N, linearly interpolated in between. The states
+    are the rollout x_{k+1} = Phi_h(x_k, u_k, u_{k+1}) of ``integrator`` from x_0 = data["x0"], and
+
+        minimise    phi(x_N) + C_N,        C = int L dt integrated as an extra state by the same integrator
+        subject to  x_N,i = x_final,i              for every state with a required final value,
+                    lo_i <= x_N,i <= hi_i           for every other state with a finite bound (if enforced),
+                    u_lower <= u_k <= u_upper.
+
+    State bounds are enforced at the shooting nodes, which for single shooting is the final node only, exactly as
+    in the published setting (Bacteria's x(T) <= 10 and Tumour's budget y(T) <= A rely on it). Bound rows are
+    divided by the state's nominal scale; required final values are not. The constraint Jacobian is dense (every
+    x_N depends on every control), so ``jacobian_sparsity`` is None.
+
+    Attributes:
+        controls: N, the number of control intervals (N + 1 control nodes).
+        integrator: the one-step method of the rollout (Heun, as published).
+        enforce_final_state_bounds: add the final-node state-bound rows.
+    """
+
+    controls: int = 100
+    integrator: AbstractIntegrator = Heun()
+    enforce_final_state_bounds: bool = True
+
+    def __post_init__(self):
+        if self.controls < 1:
+            raise ValueError(f"SingleShooting: controls must be at least 1, got {self.controls}")
+
+    def transcribe(self, system: System) -> NLP:
+        N, m = self.controls, system.n_controls
+        T = float(system.horizon)
+        h = T / N
+        times = np.linspace(0.0, T, N + 1)
+        arrays = system.arrays()
+        fixed, final = final_value_rows(system)
+        bounded = bounded_free_states(system) if self.enforce_final_state_bounds else np.zeros(0, dtype=np.int64)
+        sx = state_scale(system)
+        integrator = self.integrator
+
+        def controls_of(z):
+            return jnp.reshape(z, (N + 1, m))
+
+        def fields(params):
+            f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
+            L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
+            return f, L
+
+        def objective(z, data):
+            params = data["params"]
+            f, L = fields(params)
+            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z))
+            return cost[-1] + system.terminal_cost(xs[-1], T, params)
+
+        def constraints(z, data):
+            f, _ = fields(data["params"])
+            xT = rollout(integrator, f, data["x0"], 0.0, h, controls_of(z))[-1]
+            return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
+
+        def unravel(z, data):
+            f, _ = fields(data["params"])
+            us = controls_of(z)
+            return jnp.asarray(times), rollout(integrator, f, data["x0"], 0.0, h, us), us
+
+        def initial_guess(data):
+            del data
+            return jnp.asarray(guess_controls(system, N + 1).ravel())
+
+        n_rows = fixed.size + bounded.size
+        return NLP(
+            objective=objective,
+            constraints=constraints if n_rows else None,
+            c_lower=np.concatenate([final, arrays["x_lower"][bounded] / sx[bounded]]),
+            c_upper=np.concatenate([final, arrays["x_upper"][bounded] / sx[bounded]]),
+            z_lower=np.tile(arrays["u_lower"], N + 1),
+            z_upper=np.tile(arrays["u_upper"], N + 1),
+            initial_guess=initial_guess,
+            unravel=unravel,
+            jacobian_sparsity=None,
+            z_scale=np.tile(control_scale(system), N + 1),
+            name=f"{system.name}/single_shooting(N={N}, {type(integrator).__name__})",
+        )
+
+    def sample(self, system, states, controls):
+        del states
+        times = np.linspace(0.0, float(system.horizon), self.controls + 1)
+        return np.asarray(controls(times), dtype=np.float64).reshape(-1)

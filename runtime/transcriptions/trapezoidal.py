@@ -1,0 +1,109 @@
+"""Trapezoidal direct collocation."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..nlp import NLP
+from ..system import System
+from ._common import control_scale, final_value_rows, guess_controls, guess_states, sparsity, state_scale
+from .base import AbstractTranscription
+
+__all__ = ["Trapezoidal"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Trapezoidal(AbstractTranscription):
+    """Trapezoidal collocation on a uniform grid of N intervals (order 2).
+
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h, h = T / N (x_0 = data["x0"]). With
+    f_k = f(x_k, u_k, t_k) and L_k = L(x_k, u_k, t_k):
+
+        minimise    phi(x_N) + (h / 2) sum_k (L_k + L_{k+1})
+        subject to  (x_{k+1} - x_k - (h / 2)(f_k + f_{k+1})) / s = 0     k = 0..N-1
+                    x_N,i = x_final,i  (required final values)
+                    x_lower <= x_k <= x_upper,  u_lower <= u_k <= u_upper   (bounds on every node)
+
+    Layout of z: ``[x_1..x_N (N n), u_0..u_N ((N + 1) m)]``; defect k depends on x_k, x_{k+1}, u_k, u_{k+1}.
+
+    Attributes:
+        intervals: N.
+    """
+
+    intervals: int = 100
+
+    def __post_init__(self):
+        if self.intervals < 1:
+            raise ValueError(f"Trapezoidal: intervals must be at least 1, got {self.intervals}")
+
+    def transcribe(self, system: System) -> NLP:
+        N = self.intervals
+        n, m = system.n_states, system.n_controls
+        T = float(system.horizon)
+        h = T / N
+        times = np.linspace(0.0, T, N + 1)
+        arrays = system.arrays()
+        fixed, final = final_value_rows(system)
+        sx, su = state_scale(system), control_scale(system)
+        nX = N * n
+
+        def nodes(z, data):
+            X = jnp.reshape(z[:nX], (N, n))
+            xs = jnp.concatenate([jnp.asarray(data["x0"])[None], X], axis=0)
+            return xs, jnp.reshape(z[nX:], (N + 1, m))
+
+        def objective(z, data):
+            params = data["params"]
+            xs, us = nodes(z, data)
+            Ls = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))(xs, us, jnp.asarray(times))
+            return 0.5 * h * jnp.sum(Ls[:-1] + Ls[1:]) + system.terminal_cost(xs[-1], T, params)
+
+        def constraints(z, data):
+            params = data["params"]
+            xs, us = nodes(z, data)
+            fs = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))(xs, us, jnp.asarray(times))
+            defects = (xs[1:] - xs[:-1] - 0.5 * h * (fs[:-1] + fs[1:])) / sx
+            return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final])
+
+        def unravel(z, data):
+            xs, us = nodes(z, data)
+            return jnp.asarray(times), xs, us
+
+        def initial_guess(data):
+            X = guess_states(system, data["x0"], times[1:])
+            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel())])
+
+        blocks = []
+        for k in range(N):
+            rows = k * n + np.arange(n)
+            cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
+            if k > 0:
+                cols.append(np.arange((k - 1) * n, k * n))  # x_k
+            cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
+            blocks.append((rows, np.concatenate(cols), False))
+        for r, i in enumerate(fixed):
+            blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+
+        return NLP(
+            objective=objective,
+            constraints=constraints,
+            c_lower=np.concatenate([np.zeros(N * n), final]),
+            c_upper=np.concatenate([np.zeros(N * n), final]),
+            z_lower=np.concatenate([np.tile(arrays["x_lower"], N), np.tile(arrays["u_lower"], N + 1)]),
+            z_upper=np.concatenate([np.tile(arrays["x_upper"], N), np.tile(arrays["u_upper"], N + 1)]),
+            initial_guess=initial_guess,
+            unravel=unravel,
+            jacobian_sparsity=sparsity(blocks),
+            z_scale=np.concatenate([np.tile(sx, N), np.tile(su, N + 1)]),
+            name=f"{system.name}/trapezoidal(N={N})",
+        )
+
+    def sample(self, system, states, controls):
+        times = np.linspace(0.0, float(system.horizon), self.intervals + 1)
+        X = np.asarray(states(times[1:]), dtype=np.float64)
+        U = np.asarray(controls(times), dtype=np.float64)
+        return np.concatenate([X.ravel(), U.ravel()])
