@@ -26,10 +26,16 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("-v", "--verbose", action="store_true", help="more output; tracebacks on internal errors")
-    common.add_argument("-q", "--quiet", action="store_true", help="errors only")
-    p = _Parser(prog="myriadc", description="Compile myriad YAML specs into JAX systems.", parents=[common])
+    def flags(default):
+        # Sub-commands accept -v/-q too; SUPPRESS keeps their defaults from overwriting the top-level flags.
+        parser = argparse.ArgumentParser(add_help=False)
+        parser.add_argument("-v", "--verbose", action="store_true", default=default,
+                            help="more output; tracebacks on internal errors")
+        parser.add_argument("-q", "--quiet", action="store_true", default=default, help="errors only")
+        return parser
+
+    common = flags(argparse.SUPPRESS)
+    p = _Parser(prog="myriadc", description="Compile myriad YAML specs into JAX systems.", parents=[flags(False)])
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub_add = sub.add_parser
 

@@ -1,0 +1,45 @@
+"""Transcriptions (optimal-control problem -> NLP) and the indirect forward-backward sweep.
+
+Look one up by name with ``TRANSCRIPTIONS["hermite_simpson"](intervals=50)``; see README.md in this folder to add one.
+"""
+
+from ._common import control_scale as control_scale
+from ._common import default_data as default_data
+from ._common import state_scale as state_scale
+from .base import AbstractTranscription as AbstractTranscription
+from .fbsm import ForwardBackwardSweep as ForwardBackwardSweep
+from .fbsm import SweepResult as SweepResult
+from .fbsm import SweepState as SweepState
+from .hermite_simpson import HermiteSimpson as HermiteSimpson
+from .multiple_shooting import MultipleShooting as MultipleShooting
+from .single_shooting import SingleShooting as SingleShooting
+from .trapezoidal import Trapezoidal as Trapezoidal
+
+# Name -> class, for the CLI. Every concrete AbstractTranscription must be here (a test checks).
+TRANSCRIPTIONS: dict[str, type[AbstractTranscription]] = {
+    "single_shooting": SingleShooting,
+    "multiple_shooting": MultipleShooting,
+    "trapezoidal": Trapezoidal,
+    "hermite_simpson": HermiteSimpson,
+}
+
+# Indirect methods solve the optimality conditions themselves (``solve(system, params, x0)``) and produce no NLP.
+INDIRECT: dict[str, type] = {
+    "fbsm": ForwardBackwardSweep,
+}
+
+__all__ = [
+    "AbstractTranscription",
+    "ForwardBackwardSweep",
+    "HermiteSimpson",
+    "INDIRECT",
+    "MultipleShooting",
+    "SingleShooting",
+    "SweepResult",
+    "SweepState",
+    "TRANSCRIPTIONS",
+    "Trapezoidal",
+    "control_scale",
+    "default_data",
+    "state_scale",
+]

@@ -1,0 +1,73 @@
+"""Load a system by name (the shipped, committed modules) or compile any spec path on the fly.
+
+Specs outside the repository are compiled with :mod:`myriad.compiler` into a cache folder keyed by the spec's content
+and the compiler's own source, so editing either recompiles and nothing stale is ever imported.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+from . import systems as _registry
+from .system import System
+
+__all__ = ["load", "cache_dir"]
+
+_loaded: dict[str, System] = {}
+
+
+def cache_dir() -> Path:
+    """``$MYRIAD_CACHE`` or ``~/.cache/myriad``: where specs loaded by path are compiled."""
+    base = os.environ.get("MYRIAD_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "myriad")
+    return Path(base) / "systems"
+
+
+def _compiler_fingerprint() -> str:
+    import myriad.compiler as compiler
+
+    root = Path(compiler.__file__).parent
+    h = hashlib.sha256()
+    for p in sorted([*root.glob("*.py"), *root.glob("templates/*.jinja")]):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def load(target: str | os.PathLike) -> System:
+    """The system for a shipped name (``"pendulum"``) or a spec file path (``"my/spec.yaml"``).
+
+    Raises:
+        KeyError: an unknown name that is not a file either.
+        myriad.compiler.SpecError: the spec at the path is invalid (the message points into the file).
+    """
+    text = os.fspath(target)
+    if text in _registry.MODULES and not text.endswith((".yaml", ".yml")):
+        return _registry.get(text)
+    path = Path(text)
+    if not path.is_file():
+        raise KeyError(f"{text!r} is neither a shipped system ({', '.join(_registry.NAMES)}) nor a spec file")
+    from myriad.compiler import compile_file  # the compiler (sympy) is only needed for specs loaded by path
+
+    raw = path.read_bytes()
+    key = hashlib.sha256(raw + _compiler_fingerprint().encode()).hexdigest()
+    if key in _loaded:
+        return _loaded[key]
+    compiled = compile_file(path)
+    folder = cache_dir() / key[:32]
+    module_path = folder / f"{compiled.name}.py"
+    if not module_path.exists() or module_path.read_text(encoding="utf-8") != compiled.text:
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = module_path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(compiled.text, encoding="utf-8")
+        os.replace(tmp, module_path)
+    module_name = f"myriad_user_systems.{compiled.name}_{key[:16]}"
+    spec = importlib.util.spec_from_file_location(module_name, module_path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    spec.loader.exec_module(module)
+    _loaded[key] = module.SYSTEM
+    return module.SYSTEM
