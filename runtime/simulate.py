@@ -67,6 +67,8 @@ def simulate(
         A :class:`Simulation`.
     """
     controls = jnp.asarray(controls)
+    if not jnp.issubdtype(controls.dtype, jnp.floating):
+        controls = controls.astype(float)
     if controls.ndim == 1 and system.n_controls == 1:
         controls = controls[:, None]
     if controls.ndim != 2 or controls.shape[1] != system.n_controls or controls.shape[0] < 2:

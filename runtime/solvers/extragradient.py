@@ -1,0 +1,379 @@
+"""A first-order Lagrangian (saddle-point) method with extragradient steps, entirely in JAX."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Callable, Literal, NamedTuple, final
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..nlp import NLP, NLPResult
+from .base import (
+    AbstractNLPSolver,
+    CompiledFunction,
+    ScaledProblem,
+    cached,
+    canonical_data,
+    constraint_violation,
+    initial_point,
+)
+
+__all__ = ["Extragradient", "ExtragradientSolution"]
+
+_BOUNDS_MODES = ("projection", "sigmoid")
+# Status codes of NLPResult.status for this solver.
+CONVERGED, MAX_ITER, NOT_FINITE = 0, 1, 2
+_MESSAGES = {
+    CONVERGED: "converged: KKT residual and constraint violation below tol",
+    MAX_ITER: "maximum number of iterations reached before the KKT residual fell below tol",
+    NOT_FINITE: "stopped at a non-finite iterate (NaN or inf); try smaller steps",
+}
+# Where the sigmoid starts a variable that sits on its bound: logit(1e-3) = -6.9 keeps sigma' ~ 1e-3, not 0.
+_SIGMOID_MARGIN = 1e-3
+
+
+class ExtragradientSolution(NamedTuple):
+    """What the jit-compiled ``solve_fn(data, z0)`` returns (every field gains a batch axis under ``vmap``).
+
+    Attributes:
+        z: the final iterate (n_variables,), in the original variables.
+        multipliers: constraint multipliers (n_constraints,) in IPOPT's convention, ``dF/dz + (dc/dz)^T y`` = bound
+            terms: the augmented-Lagrangian estimates ``lambda + rho h`` and ``max(0, mu + rho g)`` (signed).
+        iterations: extragradient iterations taken (each costs two gradient evaluations).
+        converged: KKT residual and constraint violation both at most ``tol`` (and everything finite).
+        violation: the largest constraint or bound violation at ``z``.
+    """
+
+    z: jax.Array
+    multipliers: jax.Array
+    iterations: jax.Array
+    converged: jax.Array
+    violation: jax.Array
+
+
+@final
+@dataclasses.dataclass(frozen=True)
+class Extragradient(AbstractNLPSolver):
+    """Gradient descent-ascent on the (augmented) Lagrangian with an extragradient look-ahead, in pure JAX.
+
+    With equalities ``h(w) = c_E(w) - c^l_E = 0`` and one-sided inequalities ``g(w) <= 0`` (``c_U - c^u_U`` for each
+    finite upper bound and ``c^l_L - c_L`` for each finite lower bound of the remaining constraints), the method
+    seeks a saddle point of the augmented Lagrangian
+
+    .. math::
+        L_\\rho(w, \\lambda, \\mu) = F(w) + \\lambda^\\top h + \\frac{\\rho}{2}\\lVert h\\rVert^2
+            + \\frac{1}{2\\rho}\\sum_i \\big(\\max(0, \\mu_i + \\rho g_i)^2 - \\mu_i^2\\big),
+        \\qquad \\min_{w \\in B}\\ \\max_{\\lambda,\\ \\mu \\ge 0}\\ L_\\rho
+
+    (``rho = penalty``; ``rho = 0`` is the plain Lagrangian ``F + lambda^T h + mu^T g``). Writing
+    ``v = (w, lambda, mu)`` and ``G(v) = (grad_w L, -grad_lambda L, -grad_mu L)``, one iteration is Korpelevich's
+    extragradient step, with optax step rules ``T`` in place of a fixed step:
+
+    .. math::
+        v_{k+1/2} = \\Pi\\big(v_k + T(G(v_k))\\big), \\qquad v_{k+1} = \\Pi\\big(v_k + T(G(v_{k+1/2}))\\big)
+
+    i.e. the gradient is evaluated at the extrapolated point but the step is taken from the original point, which
+    damps the rotation that makes plain descent-ascent cycle around saddle points. The optimiser states are
+    threaded through both half-steps (as Extra-Adam does). ``Pi`` projects ``mu`` onto ``mu >= 0`` and the
+    variables onto their box (see ``bounds``). The inequality multipliers are thus projected non-negative
+    multipliers (no slack variables); with ``rho > 0`` their ascent direction is
+    ``dL/dmu = max(g, -mu / rho)``, which cannot drive ``mu`` negative by more than the step.
+
+    Convergence is the KKT test, at the current point, on the multiplier estimates ``y = (lambda + rho h,
+    max(0, mu + rho g))`` (for which ``grad_w L_rho = grad F + J^T y`` exactly):
+
+    * stationarity ``|| w - Pi_B(w - grad_w L_rho) ||_inf`` (the projected gradient, so active bounds count);
+    * feasibility: the largest constraint or bound violation;
+    * complementarity ``max_i |min(y_i, -g_i)|`` over the inequalities;
+
+    all at most ``tol``. Only then is the solve a success. Everything runs in scaled variables ``w = z / z_scale``
+    (see :class:`ScaledProblem`), so the stationarity test is on the scaled gradient.
+
+    Bounds:
+        ``"projection"``: clip ``w`` to the box after every half-step.
+        ``"sigmoid"``: for variables with both bounds finite, optimise ``p`` with
+        ``w = l + (u - l) * sigmoid(p)`` (``grad_p = grad_w * (u - l) s (1 - s)``), starting from
+        ``p0 = logit((w0 - l) / (u - l))`` with the fraction kept ``1e-3`` inside the box; variables with one
+        or no finite bound are still clipped. The sigmoid never reaches the bound, so a solution on a bound is
+        approached only asymptotically and the (projected) stationarity decreases accordingly.
+
+    The whole solve is one ``lax.while_loop``: :meth:`solve_fn` returns the jit-compiled ``(data, z0) ->``
+    :class:`ExtragradientSolution`, and :meth:`solve_batch` runs ``jax.vmap`` of it over a batch of ``data`` as one
+    program (the loop then runs until every member has stopped; stopped members are frozen by ``vmap``'s select,
+    so each result equals its single solve).
+
+    Attributes:
+        step: the primal step rule, an ``optax.GradientTransformation`` applied to ``grad_w L`` (descent), or a
+            learning rate for ``optax.adam``.
+        dual_step: the dual step rule, applied to ``-grad_(lambda, mu) L`` (so that descent is ascent), or a learning
+            rate for plain gradient ascent ``optax.sgd``.
+        penalty: the augmented-Lagrangian weight ``rho >= 0``; 0 is the plain Lagrangian.
+        max_iter: the iteration limit.
+        tol: the KKT tolerance (absolute, infinity norms).
+        bounds: ``"projection"`` or ``"sigmoid"`` (see above).
+
+    References:
+        Korpelevich (1976), The extragradient method for finding saddle points and other problems.
+        Gidel, Berard, Vignoud, Vincent & Lacoste-Julien (2019), A variational inequality perspective on generative
+        adversarial networks (Extra-Adam). Howe, Kirchmeyer, Lacoste-Julien et al. (2022), Myriad: a real-world
+        testbed to bridge trajectory optimization and deep learning.
+    """
+
+    step: optax.GradientTransformation | float = 1e-2
+    dual_step: optax.GradientTransformation | float = 1e-1
+    penalty: float = 1.0
+    max_iter: int = 20_000
+    tol: float = 1e-6
+    bounds: Literal["projection", "sigmoid"] = "projection"
+
+    def __post_init__(self):
+        if self.bounds not in _BOUNDS_MODES:
+            raise ValueError(f"Extragradient(bounds={self.bounds!r}): expected one of {_BOUNDS_MODES}")
+        if not self.tol > 0 or self.max_iter < 1 or not self.penalty >= 0:
+            raise ValueError("Extragradient: tol must be positive, max_iter at least 1 and penalty non-negative")
+        for name in ("step", "dual_step"):
+            value = getattr(self, name)
+            if not isinstance(value, (optax.GradientTransformation, float, int)):
+                raise TypeError(f"Extragradient({name}=...): expected an optax.GradientTransformation or a learning "
+                                f"rate, got {type(value).__name__}")
+
+    # ---- public API --------------------------------------------------------------------------------------------
+
+    def solve_fn(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
+        """The jit-compiled solve ``(data, z0) -> ExtragradientSolution`` for ``nlp`` (cached per NLP and solver).
+
+        It is a pure JAX function: it can be ``vmap``-ed over ``data`` and ``z0`` or called inside other jitted code.
+        """
+        return self._compiled(nlp).jitted
+
+    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        fns = self._compiled(nlp)
+        data = canonical_data(data)
+        z0 = initial_point(nlp, data, z0)
+        compile_seconds = fns.single.compile(data, z0) + fns.prepare_evaluation(z0, data)
+        start = time.perf_counter()
+        out = jax.block_until_ready(fns.single(data, z0))
+        solve_seconds = time.perf_counter() - start
+        return self._result(nlp, fns, out, data, compile_seconds, solve_seconds)
+
+    def solve_batch(self, nlp: NLP, batched_data: Any, z0: Any = None) -> list[NLPResult]:
+        """Solve one NLP for a batch of ``data`` (every leaf with a leading batch axis) as one vmapped program.
+
+        Args:
+            nlp: the nonlinear program.
+            batched_data: ``data`` with a leading batch axis of size ``B`` on every leaf.
+            z0: None (each member's ``nlp.initial_guess``), one start ``(n,)`` for all, or ``(B, n)``.
+
+        Returns:
+            ``B`` results, one per member. Their ``compile_seconds`` and ``solve_seconds`` are the batch's totals
+            divided by ``B`` (so that sums over the list are the batch's totals).
+        """
+        fns = self._compiled(nlp)
+        batched_data = canonical_data(batched_data)
+        sizes = {np.shape(x)[0] for x in jax.tree.leaves(batched_data)}
+        if len(sizes) != 1:
+            raise ValueError(f"solve_batch: every leaf of batched_data needs the same leading axis, got {sizes}")
+        (batch,) = sizes
+        members = [jax.tree.map(lambda x, i=i: x[i], batched_data) for i in range(batch)]
+        if z0 is None:
+            z0 = np.stack([initial_point(nlp, d, None) for d in members])
+        z0 = np.broadcast_to(np.asarray(z0, dtype=np.float64), (batch, nlp.n_variables)).copy()
+
+        compile_seconds = fns.batched.compile(batched_data, z0) + fns.prepare_evaluation(z0[0], members[0])
+        start = time.perf_counter()
+        out = jax.block_until_ready(fns.batched(batched_data, z0))
+        solve_seconds = time.perf_counter() - start
+        return [
+            self._result(nlp, fns, jax.tree.map(lambda x, i=i: x[i], out), members[i], compile_seconds / batch,
+                         solve_seconds / batch)
+            for i in range(batch)
+        ]
+
+    # ---- implementation ----------------------------------------------------------------------------------------
+
+    def _compiled(self, nlp: NLP) -> "_Compiled":
+        return cached(nlp, ("extragradient", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
+
+    def _result(self, nlp, fns, out: ExtragradientSolution, data, compile_seconds, solve_seconds) -> NLPResult:
+        z = np.asarray(out.z)
+        objective = float(fns.objective(z, data))
+        c = np.asarray(fns.constraints(z, data)) if fns.problem.n_constraints else None
+        violation = constraint_violation(nlp, z, c)
+        converged = bool(out.converged) and np.isfinite(objective)
+        if converged:
+            status = CONVERGED
+        elif np.all(np.isfinite(z)) and np.isfinite(objective):
+            status = MAX_ITER
+        else:
+            status = NOT_FINITE
+        return NLPResult(
+            z=z,
+            objective=objective,
+            success=converged,
+            status=status,
+            message=_MESSAGES[status],
+            iterations=int(out.iterations),
+            constraint_violation=violation,
+            multipliers=np.asarray(out.multipliers) if fns.problem.n_constraints else None,
+            compile_seconds=compile_seconds,
+            solve_seconds=solve_seconds,
+        )
+
+
+class _Compiled:
+    """The jitted solve (single and batched) and objective for one NLP and one solver configuration."""
+
+    def __init__(self, problem: ScaledProblem, solver: Extragradient):
+        self.problem = problem
+        raw = _make_solve_fn(problem, solver)
+        self.jitted = jax.jit(raw)
+        self.single = CompiledFunction(raw)
+        self.batched = CompiledFunction(jax.vmap(raw))
+        f, scale = problem.objective, jnp.asarray(problem.scale)
+        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
+        if problem.n_constraints:
+            c = problem.constraints
+            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
+
+    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
+        """Compile the objective and constraints used to report the result; returns the seconds spent."""
+        seconds = self.objective.compile(z, data)
+        if self.problem.n_constraints:
+            seconds += self.constraints.compile(z, data)
+        return seconds
+
+
+class _Point(NamedTuple):
+    """The (augmented) Lagrangian's derivatives at one primal-dual point."""
+
+    grad_p: jax.Array  # descent direction's gradient for the primal parameters p
+    grad_duals: tuple  # -dL/d(lambda, mu_upper, mu_lower): "gradients" whose descent is ascent
+    kkt: jax.Array  # max(stationarity, violation, complementarity)
+    violation: jax.Array
+    multipliers: jax.Array  # the estimates y, one per NLP constraint, IPOPT's sign convention
+
+
+def _optax_promotion():
+    """Standard dtype promotion for optax's own arithmetic only.
+
+    NOTE: optax mixes Python floats with its int32 step counter (``b1 ** count`` in adam's bias correction), which
+    ``jax_numpy_dtype_promotion="strict"`` (our test setting) rejects. The context applies while tracing the step
+    rules only; the NLP's functions stay under whatever promotion the caller set.
+    """
+    return jax.numpy_dtype_promotion("standard")
+
+
+def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[Any, Any], ExtragradientSolution]:
+    """Build the pure ``(data, z0) -> ExtragradientSolution`` for one scaled problem. All indices are static."""
+    f, c_fn = problem.objective, problem.constraints
+    n, m = problem.n_variables, problem.n_constraints
+    scale = jnp.asarray(problem.scale)
+    lo, hi = jnp.asarray(problem.w_lower), jnp.asarray(problem.w_upper)
+    c_lo, c_up = problem.c_lower, problem.c_upper
+    eq = (c_lo == c_up) & np.isfinite(c_lo)
+    eq_idx, up_idx, lo_idx = np.flatnonzero(eq), np.flatnonzero(~eq & np.isfinite(c_up)), np.flatnonzero(~eq & np.isfinite(c_lo))
+    rho = float(solver.penalty)
+    tol, max_iter = float(solver.tol), int(solver.max_iter)
+    primal = solver.step if isinstance(solver.step, optax.GradientTransformation) else optax.adam(float(solver.step))
+    dual = (
+        solver.dual_step if isinstance(solver.dual_step, optax.GradientTransformation) else optax.sgd(float(solver.dual_step))
+    )
+
+    # Reparametrisation w = to_w(p). Variables with both bounds finite go through the sigmoid in "sigmoid" mode;
+    # all others are the identity and are clipped.
+    sigmoid = solver.bounds == "sigmoid"
+    boxed = jnp.asarray(np.isfinite(problem.w_lower) & np.isfinite(problem.w_upper)) if sigmoid else jnp.zeros(n, bool)
+    width = jnp.where(boxed, hi - lo, 1.0)
+    base = jnp.where(boxed, lo, 0.0)
+
+    def to_w(p):
+        # The clip only removes rounding: lo + (hi - lo) * sigmoid(p) can exceed hi by an ulp.
+        return jnp.clip(jnp.where(boxed, base + width * jax.nn.sigmoid(p), p), lo, hi)
+
+    def dw_dp(p):
+        s = jax.nn.sigmoid(p)
+        return jnp.where(boxed, width * s * (1.0 - s), 1.0)
+
+    def from_w(w):
+        frac = jnp.clip((w - base) / width, _SIGMOID_MARGIN, 1.0 - _SIGMOID_MARGIN)
+        return jnp.where(boxed, jnp.log(frac) - jnp.log1p(-frac), jnp.clip(w, lo, hi))
+
+    def project_p(p):
+        return jnp.where(boxed, p, jnp.clip(p, lo, hi))
+
+    def project_duals(duals):
+        lam, mu_u, mu_l = duals
+        return lam, jnp.maximum(mu_u, 0.0), jnp.maximum(mu_l, 0.0)
+
+    def evaluate(p, duals, data) -> _Point:
+        lam, mu_u, mu_l = duals
+        w = to_w(p)
+        if m:
+            (_, c), vjp = jax.vjp(lambda w_: (f(w_, data), c_fn(w_, data)), w)
+            h, g_u, g_l = c[eq_idx] - c_lo[eq_idx], c[up_idx] - c_up[up_idx], c_lo[lo_idx] - c[lo_idx]
+            # First-order multiplier estimates: grad_w L_rho = grad F + J^T y exactly.
+            y_eq, y_u, y_l = lam + rho * h, jnp.maximum(mu_u + rho * g_u, 0.0), jnp.maximum(mu_l + rho * g_l, 0.0)
+            y = jnp.zeros(m, dtype=w.dtype).at[eq_idx].add(y_eq).at[up_idx].add(y_u).at[lo_idx].add(-y_l)
+            (grad_w,) = vjp((jnp.ones((), dtype=w.dtype), y))
+            # dL_rho/dmu = (max(0, mu + rho g) - mu) / rho = max(g, -mu / rho); g itself when rho = 0.
+            ascent_u = jnp.maximum(g_u, -mu_u / rho) if rho > 0 else g_u
+            ascent_l = jnp.maximum(g_l, -mu_l / rho) if rho > 0 else g_l
+            grad_duals = (-h, -ascent_u, -ascent_l)
+            g_all, y_ineq = jnp.concatenate([g_u, g_l]), jnp.concatenate([y_u, y_l])
+            violation = jnp.max(jnp.concatenate([jnp.zeros(1), jnp.abs(h), g_all]))
+            complementarity = jnp.max(jnp.concatenate([jnp.zeros(1), jnp.abs(jnp.minimum(y_ineq, -g_all))]))
+        else:
+            grad_w = jax.grad(f)(w, data)
+            y = jnp.zeros(0, dtype=w.dtype)
+            grad_duals = (jnp.zeros(0, dtype=w.dtype),) * 3
+            violation = complementarity = jnp.zeros((), dtype=w.dtype)
+        stationarity = jnp.max(jnp.abs(w - jnp.clip(w - grad_w, lo, hi)), initial=0.0)
+        kkt = jnp.maximum(jnp.maximum(stationarity, violation), complementarity)
+        kkt = jnp.where(jnp.isfinite(kkt) & jnp.all(jnp.isfinite(w)), kkt, jnp.inf)
+        return _Point(grad_w * dw_dp(p), grad_duals, kkt, violation, y)
+
+    def step(origin_p, origin_duals, state_p, state_d, at: _Point):
+        """One projected optax step from ``origin`` along the gradients ``at`` a (possibly other) point."""
+        with _optax_promotion():
+            update_p, state_p = primal.update(at.grad_p, state_p, origin_p)
+            update_d, state_d = dual.update(at.grad_duals, state_d, origin_duals)
+        p = project_p(origin_p + update_p)
+        duals = project_duals(jax.tree.map(jnp.add, origin_duals, update_d))
+        return p, duals, state_p, state_d
+
+    def solve(data, z0) -> ExtragradientSolution:
+        z0 = jnp.asarray(z0)
+        p0 = from_w(z0 / scale) if sigmoid else jnp.clip(z0 / scale, lo, hi)
+        duals0 = (jnp.zeros(eq_idx.size, z0.dtype), jnp.zeros(up_idx.size, z0.dtype), jnp.zeros(lo_idx.size, z0.dtype))
+        with _optax_promotion():
+            states0 = primal.init(p0), dual.init(duals0)
+        init = (jnp.zeros((), jnp.int32), p0, duals0, *states0, evaluate(p0, duals0, data))
+
+        def cond(carry):
+            k, *_, point = carry
+            # A non-finite point has kkt = +inf: stop there rather than iterate on NaNs.
+            return (k < max_iter) & (point.kkt > tol) & jnp.isfinite(point.kkt)
+
+        def body(carry):
+            k, p, duals, state_p, state_d, point = carry
+            # Look ahead from (p, duals) with the gradient there ...
+            p_half, duals_half, state_p, state_d = step(p, duals, state_p, state_d, point)
+            # ... and step from (p, duals) again with the gradient at the look-ahead point.
+            point_half = evaluate(p_half, duals_half, data)
+            p, duals, state_p, state_d = step(p, duals, state_p, state_d, point_half)
+            return k + 1, p, duals, state_p, state_d, evaluate(p, duals, data)
+
+        k, p, duals, _, _, point = jax.lax.while_loop(cond, body, init)
+        return ExtragradientSolution(
+            z=to_w(p) * scale,
+            multipliers=point.multipliers,
+            iterations=k,
+            converged=point.kkt <= tol,
+            violation=point.violation,
+        )
+
+    return solve
