@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -19,6 +20,7 @@ __all__ = [
     "sparsity",
     "final_value_rows",
     "bounded_free_states",
+    "node_state_bounds",
 ]
 
 
@@ -30,14 +32,17 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
         params: parameter values; missing names take the spec's defaults.
         x0: the initial state; defaults to ``system.x0``.
     """
-    p = system.default_params(jnp.float64)
+    # Every leaf gets the same concrete (not weakly typed) float dtype, whatever the caller passed: a Python float
+    # and a float64 array trace differently, and a jitted NLP function would silently recompile for new data.
+    dtype = jax.dtypes.canonicalize_dtype(np.float64)
+    p = system.default_params(dtype)
     if params is not None:
         unknown = set(params) - set(p)
         if unknown:
             raise KeyError(f"{system.name}: unknown parameters {sorted(unknown)}; expected some of {list(p)}")
-        p.update({k: jnp.asarray(v) for k, v in params.items()})
-    x0 = np.asarray(system.x0, dtype=np.float64) if x0 is None else x0
-    return {"params": p, "x0": jnp.asarray(x0)}
+        p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
+    x0 = system.x0 if x0 is None else x0
+    return {"params": p, "x0": jnp.asarray(x0, dtype=dtype)}
 
 
 def nominal_scale(lower: np.ndarray, upper: np.ndarray, fallback: np.ndarray | None = None) -> np.ndarray:
@@ -48,8 +53,8 @@ def nominal_scale(lower: np.ndarray, upper: np.ndarray, fallback: np.ndarray | N
     """
     lower = np.asarray(lower, dtype=np.float64)
     upper = np.asarray(upper, dtype=np.float64)
-    mags = np.stack([np.where(np.isfinite(lower), np.abs(lower), 0.0), np.where(np.isfinite(upper), np.abs(upper), 0.0)])
-    scale = mags.max(axis=0)
+    finite_abs = lambda b: np.where(np.isfinite(b), np.abs(b), 0.0)  # noqa: E731
+    scale = np.maximum(finite_abs(lower), finite_abs(upper))
     if fallback is not None:
         fb = np.abs(np.asarray(fallback, dtype=np.float64))
         scale = np.where(scale > 0.0, scale, fb)
@@ -138,3 +143,18 @@ def bounded_free_states(system: System) -> np.ndarray:
     a = system.arrays()
     finite = np.isfinite(a["x_lower"]) | np.isfinite(a["x_upper"])
     return np.flatnonzero(finite & ~system.final_mask)
+
+
+def node_state_bounds(system: System, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """State bounds tiled over ``nodes`` node-state blocks (the last block is x(T)), flattened to (nodes * n,).
+
+    The last node's bounds are dropped (set to -inf/+inf) for the states with a required final value: the equality
+    row already pins them, and an active bound duplicating it (Predator Prey's z(T) = B with z <= B) would make the
+    constraint gradients linearly dependent, which interior-point solvers dislike.
+    """
+    a = system.arrays()
+    lo = np.tile(a["x_lower"], (nodes, 1))
+    hi = np.tile(a["x_upper"], (nodes, 1))
+    lo[-1, system.final_mask] = -np.inf
+    hi[-1, system.final_mask] = np.inf
+    return lo.ravel(), hi.ravel()

@@ -28,10 +28,15 @@ class AbstractTranscription(abc.ABC):
       on it).
     - The objective is J = phi(x(T)) + int L dt in minimisation form, in the transcription's quadrature.
     - Constraints are ordered ``[dynamics defects (collocation / multiple shooting), required final values,
-      final-state bounds (single shooting)]``. Defect rows are divided by the state's nominal scale; required final
-      values are *not* scaled, so a solver's constraint tolerance is the absolute tolerance on x_i(T).
-    - Control and state bounds are ``z_lower`` / ``z_upper`` (infinite where unbounded); ``z_scale`` holds nominal
-      magnitudes from :func:`~myriad.runtime.transcriptions._common.state_scale` and ``control_scale``.
+      final-state bounds (single shooting)]``. Equality rows are residuals with c_lower = c_upper = 0; required
+      final values appear as x_i(T) - x_final,i. Defect rows are divided by the state's nominal scale; required
+      final values are *not* scaled, so a solver's constraint tolerance is the absolute tolerance on x_i(T).
+    - Control and state bounds are ``z_lower`` / ``z_upper`` (infinite where unbounded). A state with a required
+      final value has no bound at the final node (the equality pins it; a duplicate active bound would make the
+      constraint gradients linearly dependent). ``z_scale`` holds nominal magnitudes from
+      :func:`~myriad.runtime.transcriptions.state_scale` and :func:`~myriad.runtime.transcriptions.control_scale`.
+    - The functions are pure and not jitted: the solver jits them with ``data`` as a traced argument, so new
+      parameters or a new x0 reuse the compiled code, and a batch of ``data`` is one ``jax.vmap``.
     - ``unravel(z, data)`` returns ``(times, states, controls)`` on the transcription's own grid, x(0) included.
 
     Concrete transcriptions are frozen, hashable dataclasses (static ``jax.jit`` arguments).

@@ -10,7 +10,15 @@ import numpy as np
 
 from ..nlp import NLP
 from ..system import System
-from ._common import control_scale, final_value_rows, guess_controls, guess_states, sparsity, state_scale
+from ._common import (
+    control_scale,
+    final_value_rows,
+    guess_controls,
+    guess_states,
+    node_state_bounds,
+    sparsity,
+    state_scale,
+)
 from .base import AbstractTranscription
 
 __all__ = ["HermiteSimpson"]
@@ -120,13 +128,14 @@ class HermiteSimpson(AbstractTranscription):
         for r, i in enumerate(fixed):
             blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
 
+        x_lo, x_hi = node_state_bounds(system, N)
         return NLP(
             objective=objective,
             constraints=constraints,
-            c_lower=np.concatenate([np.zeros(N * n), final]),
-            c_upper=np.concatenate([np.zeros(N * n), final]),
-            z_lower=np.concatenate([np.tile(arrays["x_lower"], N), np.tile(arrays["u_lower"], 2 * N + 1)]),
-            z_upper=np.concatenate([np.tile(arrays["x_upper"], N), np.tile(arrays["u_upper"], 2 * N + 1)]),
+            c_lower=np.zeros(N * n + fixed.size),
+            c_upper=np.zeros(N * n + fixed.size),
+            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], 2 * N + 1)]),
+            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], 2 * N + 1)]),
             initial_guess=initial_guess,
             unravel=unravel,
             jacobian_sparsity=sparsity(blocks),

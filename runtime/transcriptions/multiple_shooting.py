@@ -11,7 +11,15 @@ import numpy as np
 from ..integrators import RK4, AbstractIntegrator, rollout, rollout_with_cost
 from ..nlp import NLP
 from ..system import System
-from ._common import control_scale, final_value_rows, guess_controls, guess_states, sparsity, state_scale
+from ._common import (
+    control_scale,
+    final_value_rows,
+    guess_controls,
+    guess_states,
+    node_state_bounds,
+    sparsity,
+    state_scale,
+)
 from .base import AbstractTranscription
 
 __all__ = ["MultipleShooting"]
@@ -119,13 +127,14 @@ class MultipleShooting(AbstractTranscription):
         for r, i in enumerate(fixed):
             blocks.append((np.array([M * n + r]), np.array([(M - 1) * n + i]), True))
 
+        x_lo, x_hi = node_state_bounds(system, M)
         return NLP(
             objective=objective,
             constraints=constraints,
-            c_lower=np.concatenate([np.zeros(M * n), final]),
-            c_upper=np.concatenate([np.zeros(M * n), final]),
-            z_lower=np.concatenate([np.tile(arrays["x_lower"], M), np.tile(arrays["u_lower"], N + 1)]),
-            z_upper=np.concatenate([np.tile(arrays["x_upper"], M), np.tile(arrays["u_upper"], N + 1)]),
+            c_lower=np.zeros(M * n + fixed.size),
+            c_upper=np.zeros(M * n + fixed.size),
+            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1)]),
+            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1)]),
             initial_guess=initial_guess,
             unravel=unravel,
             jacobian_sparsity=sparsity(blocks),

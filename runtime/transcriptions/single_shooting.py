@@ -90,8 +90,8 @@ class SingleShooting(AbstractTranscription):
         return NLP(
             objective=objective,
             constraints=constraints if n_rows else None,
-            c_lower=np.concatenate([final, arrays["x_lower"][bounded] / sx[bounded]]),
-            c_upper=np.concatenate([final, arrays["x_upper"][bounded] / sx[bounded]]),
+            c_lower=np.concatenate([np.zeros(fixed.size), arrays["x_lower"][bounded] / sx[bounded]]),
+            c_upper=np.concatenate([np.zeros(fixed.size), arrays["x_upper"][bounded] / sx[bounded]]),
             z_lower=np.tile(arrays["u_lower"], N + 1),
             z_upper=np.tile(arrays["u_upper"], N + 1),
             initial_guess=initial_guess,
