@@ -41,8 +41,26 @@ def _symbolic(text: str, display: str) -> SymbolicProblem:
 def compile_spec(text: str, display: str = "<spec>") -> Compiled:
     """Compile spec text to module text. Raises SpecError (bad spec) or CodegenError."""
     sym = _symbolic(text, display)
-    data = lower_mod.lower(sym, display)
+    try:
+        data = lower_mod.lower(sym, display)
+    except CodegenError as exc:
+        # A valid-looking spec whose derived code cannot be emitted (e.g. log(0) in one branch): report it at the
+        # spec field it came from, like any other spec error.
+        raise _at_field(sym, exc) from None
     return Compiled(sym.spec.name, render.render_system(data), data, sym)
+
+
+def _at_field(sym: SymbolicProblem, exc: CodegenError) -> SpecError:
+    spec = sym.spec
+    field = getattr(exc, "field", "") or ""
+    if field.startswith("cost.terminal") and spec.terminal is not None:
+        loc = spec.terminal.loc
+    elif field.startswith("cost"):
+        loc = spec.running.loc
+    else:
+        loc = spec.dynamics_loc
+    line = spec.lines[loc.line - 1] if 0 < loc.line <= len(spec.lines) else None
+    return SpecError(f"cannot generate code: {exc}", loc, line)
 
 
 def _display(path: Path) -> str:

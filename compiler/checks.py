@@ -43,7 +43,10 @@ def _show(name: str) -> str:
 def check_names(spec: ProblemSpec) -> None:
     """System name, symbol names (identifier, not reserved, unique across sections), equations per state."""
     stem = os.path.splitext(os.path.basename(spec.file))[0]
-    if not _SYSTEM_NAME.match(spec.name) or keyword.iskeyword(spec.name) or len(spec.name) > 64:
+    if keyword.iskeyword(spec.name):
+        raise _error(spec, f"system name `{spec.name}` is a Python keyword; it names the generated module: choose "
+                     f"another, e.g. `{spec.name}_system`", spec.name_loc)
+    if not _SYSTEM_NAME.match(spec.name) or len(spec.name) > 64:
         raise _error(spec, f"system name `{_show(spec.name)}` must be a lowercase identifier ([a-z][a-z0-9_]*, at "
                      "most 64 characters), e.g. `cancer_treatment`; it names the generated module", spec.name_loc)
     if spec.file.endswith((".yaml", ".yml")) and stem != spec.name:
@@ -118,7 +121,8 @@ def check_problem(sym: SymbolicProblem) -> None:
     if spec.terminal is not None:
         exprs.append(("cost.terminal", sym.terminal, spec.terminal))
     for field, e, src in exprs:
-        if e.has(sympy.zoo, sympy.nan) or e.has(sympy.oo) or e.has(-sympy.oo):
+        # AccumBounds: what sympy makes of sin(inf) or cos(inf), which no code can print
+        if e.has(sympy.zoo, sympy.nan, sympy.AccumBounds) or e.has(sympy.oo) or e.has(-sympy.oo):
             raise _error(spec, f"`{field}` evaluates to an infinite or undefined value (e.g. a division by zero); "
                          "check the expression", src.loc)
         if e.has(sympy.I):

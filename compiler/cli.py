@@ -56,11 +56,17 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _report(errors, out=sys.stderr) -> None:
+def _report(errors, out=None) -> None:
+    out = out or sys.stderr  # looked up per call, so redirected or captured stderr gets the messages
     for e in errors:
         print(str(e), file=out)
     n = len(errors)
     print(f"myriadc: {n} error{'s' if n != 1 else ''}", file=out)
+
+
+def _clean(text: str) -> str:
+    """Spec text for the terminal: no escape sequences or control characters from a hostile spec."""
+    return "".join(ch if ch.isprintable() else "?" for ch in text)
 
 
 def _resolve(target: str) -> Path:
@@ -127,7 +133,7 @@ def _cmd_list(args) -> int:
         s = sym.spec
         fixed = sum(v is not None for v in sym.x_final)
         rows.append((s.name, str(len(s.states)), str(len(s.controls)), f"{sym.horizon:g}", s.sense[:3],
-                     str(fixed), s.title))
+                     str(fixed), _clean(s.title)))
     head = ("name", "states", "controls", "T", "sense", "fixed x(T)", "title")
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
     for r in [head, *rows]:
@@ -141,8 +147,8 @@ def _cmd_list(args) -> int:
 def _cmd_show(args) -> int:
     c = compile_file(_resolve(args.target))
     s = c.symbolic.spec
-    print(f"{s.name}: {s.title}  ({s.file}, sha256 {s.sha256[:12]})")
-    print(f"  {s.description}")
+    print(f"{s.name}: {_clean(s.title)}  ({_clean(s.file)}, sha256 {s.sha256[:12]})")
+    print(f"  {_clean(s.description)}")
     sym = c.symbolic
     print(f"  states:   " + ", ".join(f"{n} in [{lo:g}, {hi:g}], x0 = {x0:g}" + (f", x(T) = {xf:g}" if xf is not None else "")
                                      for n, lo, hi, x0, xf in zip((v.name for v in s.states), sym.x_lower, sym.x_upper,
@@ -152,7 +158,7 @@ def _cmd_show(args) -> int:
     print(f"  T = {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
     width = max(len(k) for k, _ in c.data.summary)
     for k, v in c.data.summary:
-        print(f"  {k.rjust(width)} = {v}")
+        print(f"  {_clean(k).rjust(width)} = {_clean(v)}")
     return 0
 
 

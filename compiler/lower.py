@@ -40,6 +40,15 @@ class Derived:
     u_star_note: str
 
 
+def _d(expr, var):
+    """d expr / d var almost everywhere: the Dirac deltas that sign/Heaviside produce are zero off a null set (and
+    cannot be printed), so they are dropped, as autodiff of the generated code would do."""
+    out = sympy.diff(expr, var)
+    if out.has(sympy.DiracDelta):
+        out = out.replace(lambda e: isinstance(e, sympy.DiracDelta), lambda e: sympy.Integer(0))
+    return out
+
+
 def class_name(system_name: str) -> str:
     return "".join(part[:1].upper() + part[1:] for part in system_name.split("_") if part) or "System_"
 
@@ -51,10 +60,15 @@ def derive(sym: SymbolicProblem) -> Derived:
     phi = sign * sym.terminal
     lam = tuple(sympy.Symbol(f"_lam{i}", real=True) for i in range(len(sym.states)))
     H = L + sum((li * fi for li, fi in zip(lam, f)), sympy.Integer(0))
-    costate = tuple(-sympy.diff(H, x) for x in sym.states)
-    dH_du = tuple(sympy.diff(H, u) for u in sym.controls)
-    terminal_costate = tuple(sympy.diff(phi, x) for x in sym.states)
-    u_star, kind, note = _characterise(sym, H, dH_du)
+    costate = tuple(-_d(H, x) for x in sym.states)
+    dH_du = tuple(_d(H, u) for u in sym.controls)
+    terminal_costate = tuple(_d(phi, x) for x in sym.states)
+    try:
+        u_star, kind, note = _characterise(sym, H, dH_du)
+    except (TypeError, ValueError, ZeroDivisionError) as exc:  # sympy could not decide a comparison or a sign
+        u_star, kind, note = None, "none", f"u* could not be characterised symbolically ({type(exc).__name__})"
+    if u_star is not None and any(e.free_symbols & set(sym.controls) for e in u_star):
+        u_star, kind, note = None, "none", "dH/du = 0 has no closed form here (u* would still depend on u)"
     return Derived(f, L, phi, lam, H, costate, dH_du, terminal_costate, u_star, kind, note)
 
 
@@ -64,12 +78,12 @@ def _characterise(sym: SymbolicProblem, H, dH_du):
     nominal = dict(zip(sym.params, sym.param_values))
     u_star, kinds = [], []
     for j, (u, g, lo, hi) in enumerate(zip(controls, dH_du, sym.u_lower, sym.u_upper)):
-        curv = sympy.diff(g, u)
+        curv = _d(g, u)
         if curv.free_symbols & set(controls):
             return None, "none", (f"H is neither linear nor quadratic in `{u}` (d2H/d{u}2 = {curv} depends on the "
                                   "controls), so dH/du = 0 has no closed form here; use a direct transcription")
         for k, v in enumerate(controls):
-            if k != j and sympy.diff(g, v) != 0:
+            if k != j and _d(g, v) != 0:
                 return None, "none", (f"H couples the controls `{u}` and `{v}` (d2H/d{u}d{v} != 0); the indirect "
                                       "method here needs decoupled controls")
         if curv == 0:
@@ -135,7 +149,9 @@ def _function(name, doc, argkinds, outputs, shape, sym, derived, field) -> Codeg
     allowed = {sympy.Symbol(n, real=True) for n, _ in unpack} | {s for s, _ in temps}
     stray = used - allowed
     if stray:
-        raise CodegenError(f"{field} depends on {', '.join(sorted(map(str, stray)))}, which {name} does not take")
+        err = CodegenError(f"{field} depends on {', '.join(sorted(map(str, stray)))}, which {name} does not take")
+        err.field = field
+        raise err
 
     printer = StrictJaxPrinter().for_field(field)
     temp_lines = tuple((str(s), printer.doprint(e)) for s, e in temps)
@@ -201,13 +217,13 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         _function("terminal_cost", "phi(x, t, p) at the final time, minimisation form.",
                   ("x", "t", "p"), (d.phi,), "scalar", sym, d, "cost.terminal"),
         _function("dynamics_jac_x", "df/dx, shape (n_states, n_states).", ("x", "u", "t", "p"),
-                  tuple(tuple(sympy.diff(fi, xj) for xj in X) for fi in d.f), "matrix", sym, d, "dynamics"),
+                  tuple(tuple(_d(fi, xj) for xj in X) for fi in d.f), "matrix", sym, d, "dynamics"),
         _function("dynamics_jac_u", "df/du, shape (n_states, n_controls).", ("x", "u", "t", "p"),
-                  tuple(tuple(sympy.diff(fi, uj) for uj in U) for fi in d.f), "matrix", sym, d, "dynamics"),
+                  tuple(tuple(_d(fi, uj) for uj in U) for fi in d.f), "matrix", sym, d, "dynamics"),
         _function("running_cost_grad_x", "dL/dx, shape (n_states,).", ("x", "u", "t", "p"),
-                  tuple(sympy.diff(d.L, xj) for xj in X), "vector", sym, d, "cost.running"),
+                  tuple(_d(d.L, xj) for xj in X), "vector", sym, d, "cost.running"),
         _function("running_cost_grad_u", "dL/du, shape (n_controls,).", ("x", "u", "t", "p"),
-                  tuple(sympy.diff(d.L, uj) for uj in U), "vector", sym, d, "cost.running"),
+                  tuple(_d(d.L, uj) for uj in U), "vector", sym, d, "cost.running"),
         _function("terminal_cost_grad_x", "dphi/dx, shape (n_states,).", ("x", "t", "p"),
                   d.terminal_costate, "vector", sym, d, "cost.terminal"),
         _function("hamiltonian", "H = L + lam . f, minimisation form.", ("x", "u", "lam", "t", "p"),
@@ -220,8 +236,11 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
                   ("x", "t", "p"), d.terminal_costate, "vector", sym, d, "cost.terminal"),
     ]
     if d.u_star is not None:
-        fns.append(_function("optimal_control", f"u*(x, lam, t, p), {d.u_star_kind}: {d.u_star_note}.",
-                             ("x", "lam", "t", "p"), d.u_star, "vector", sym, d, "optimal_control"))
+        try:
+            fns.append(_function("optimal_control", f"u*(x, lam, t, p), {d.u_star_kind}: {d.u_star_note}.",
+                                 ("x", "lam", "t", "p"), d.u_star, "vector", sym, d, "optimal_control"))
+        except CodegenError as exc:  # u* is optional: the system still compiles, the sweep then refuses it
+            d = dataclasses.replace(d, u_star=None, u_star_kind="none", u_star_note=f"u* cannot be printed: {exc}")
 
     learnable = tuple(p.name for p in spec.parameters if p.learnable)
     guesses = tuple(g for p, g in zip(spec.parameters, sym.guesses) if p.learnable)

@@ -29,6 +29,32 @@ CONTROL_FIELDS = {"bounds": False, "description": False, "units": False}
 COST_FIELDS = {"sense": True, "running": True, "terminal": False}
 REFERENCE_FIELDS = {"published": False, "target": False, "note": False}
 SENSES = ("minimize", "maximize")
+_CORE_TAGS = frozenset(f"tag:yaml.org,2002:{t}" for t in ("str", "int", "float", "bool", "null", "map", "seq"))
+
+
+class _Refused(yaml.MarkedYAMLError):
+    """Valid YAML that specs do not accept (aliases, tags); the message is the problem itself."""
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that refuses aliases and tags while composing.
+
+    An alias shares one node between several fields, so every error about it would point at the anchor, and aliases
+    nest exponentially (billion laughs); tags such as ``!!python/object`` mean nothing in a spec and are never
+    constructed, so they are rejected rather than silently ignored.
+    """
+
+    def compose_node(self, parent, index):
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent):
+            raise _Refused(None, None, "YAML aliases (`*name`) are not supported; write the value out in full",
+                           event.start_mark)
+        tag = getattr(event, "tag", None)
+        if tag is not None and tag not in _CORE_TAGS:
+            shown = _show(tag.replace("tag:yaml.org,2002:", "!!"), 60)
+            raise _Refused(None, None, f"YAML tags such as `{shown}` are not supported; remove the tag",
+                           event.start_mark)
+        return super().compose_node(parent, index)
 
 
 class _Reader:
@@ -82,14 +108,23 @@ class _Reader:
             raise self.error(f"expected a single value, got {_kind(node)}", self.loc(node, path))
         try:
             return self._loader.construct_object(node)
-        except yaml.YAMLError as exc:
+        except (yaml.YAMLError, ValueError) as exc:  # ValueError: e.g. an integer too long, a date like 2024-13-45
             raise self.error(f"cannot read this value ({_first_line(exc)})", self.loc(node, path)) from None
 
     def text(self, node: yaml.Node, path: tuple[str, ...], what: str) -> str:
         value = self.scalar(node, path)
         if not isinstance(value, str):
             raise self.error(f"expected text for {what}, got {type(value).__name__} `{value}`", self.loc(node, path))
+        self.valid_unicode(value, node, path)
         return value
+
+    def valid_unicode(self, value: str, node: yaml.Node, path: tuple[str, ...]) -> None:
+        """Text must be encodable: a lone surrogate (from an escape such as ``\\ud800``) breaks the generated module."""
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError as exc:
+            raise self.error(f"text is not valid Unicode: it contains a lone surrogate U+{ord(value[exc.start]):04X}; "
+                             "remove it or write the whole character", self.loc(node, path)) from None
 
     def boolean(self, node: yaml.Node, path: tuple[str, ...]) -> bool:
         value = self.scalar(node, path)
@@ -105,7 +140,10 @@ class _Reader:
             shown = "empty" if value is None else str(value).lower()
             raise self.error(f"expected a number or an expression, got {shown}", loc)
         if isinstance(value, (int, float)):
-            return Expr(text=node.value, loc=loc, number=float(value))
+            try:
+                return Expr(text=node.value, loc=loc, number=float(value))
+            except OverflowError:
+                raise self.error("number too large; write it in floating point, e.g. `1.0e+30`", loc) from None
         if not isinstance(value, str):
             raise self.error(f"expected a number or an expression, got {type(value).__name__}", loc)
         single_line = node.start_mark.line == node.end_mark.line
@@ -146,16 +184,24 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
     if len(text.encode("utf-8", "surrogatepass")) > MAX_SPEC_BYTES:
         raise r.error(f"spec is larger than {MAX_SPEC_BYTES} bytes", Location(file, 1, 1))
     try:
-        loader = yaml.SafeLoader(text)
+        loader = _Loader(text)
         try:
             root = loader.get_single_node()
         finally:
             loader.dispose()
+    except _Refused as exc:
+        raise r.error(exc.problem, Location(file, exc.problem_mark.line + 1, exc.problem_mark.column + 1)) from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line, col = (mark.line + 1, mark.column + 1) if mark else (1, 1)
-        raise r.error(f"invalid YAML: {exc.problem or exc.context}; check indentation and quoting",
-                      Location(file, line, col)) from None
+        what = ", ".join(m for m in (exc.context, exc.problem) if m)
+        hint = "indent with spaces, not tabs" if "'\\t'" in what else "check indentation and quoting"
+        raise r.error(f"invalid YAML: {what}; {hint}", Location(file, line, col)) from None
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow, at a character offset
+        line = text.count("\n", 0, exc.position) + 1
+        col = exc.position - (text.rfind("\n", 0, exc.position) + 1) + 1
+        raise r.error(f"invalid YAML: {_first_line(exc)}; remove it (in double-quoted text, write an escape such as "
+                      "`\\x07`)", Location(file, line, col)) from None
     except (yaml.YAMLError, RecursionError, ValueError) as exc:
         raise r.error(f"invalid YAML: {_first_line(exc)}", Location(file, 1, 1)) from None
     if root is None:
@@ -166,7 +212,8 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
     schema_node = top["schema"][1]
     schema = r.scalar(schema_node, ("schema",))
     if isinstance(schema, bool) or not isinstance(schema, int) or schema != SCHEMA_VERSION:
-        raise r.error(f"unsupported schema `{_show(str(schema))}`; this compiler reads `schema: {SCHEMA_VERSION}`",
+        got = f"text `{_show(schema)}`" if isinstance(schema, str) else f"`{_show(str(schema))}`"
+        raise r.error(f"unsupported schema {got}; this compiler reads `schema: {SCHEMA_VERSION}` (a number)",
                       r.loc(schema_node, ("schema",)))
 
     name_node = top["name"][1]
@@ -228,6 +275,7 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
             if key == "note":
                 if not isinstance(value, str):
                     raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
+                r.valid_unicode(value, vn, ("reference", key))
             elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
                               r.loc(vn, ("reference", key)))

@@ -45,8 +45,10 @@ class StrictJaxPrinter(JaxPrinter):
         return self._module_format("jax.numpy." + name)
 
     def _unsupported(self, expr) -> str:
-        raise CodegenError(f"cannot print `{type(expr).__name__}` (in {self.field}: {str(expr)[:80]}); "
+        err = CodegenError(f"cannot print `{type(expr).__name__}` (in {self.field}: {str(expr)[:80]}); "
                            "myriadc supports the functions listed in specs/README.md")
+        err.field = self.field
+        raise err
 
     # Anything not explicitly handled below is an error, not a comment in the output.
     _print_not_supported = _unsupported

@@ -21,6 +21,7 @@ __all__ = ["to_symbolic", "ExpressionParser", "FUNCTIONS", "wrap_mod", "wrap_flo
 
 MAX_EXPR_CHARS = 10_000
 MAX_DEPTH = 200
+MAX_NUMBER_BITS = 4096  # exact numbers beyond this (~1200 digits) are far outside float64 and too long to print
 
 TIME = sympy.Symbol("t", real=True)
 
@@ -44,7 +45,7 @@ class wrap_mod(sympy.Function):  # noqa: N801 - sympy function naming
 
     def _eval_evalf(self, prec):
         x, m = (a.evalf(prec) for a in self.args)
-        if x.is_Number and m.is_Number:
+        if x.is_Number and m.is_Number and m != 0:  # like eval: x mod 0 stays unevaluated
             return sympy.Mod(x, m).evalf(prec)
         return None
 
@@ -136,6 +137,13 @@ class ExpressionParser:
         return SpecError(message, loc, line)
 
     def parse(self, expr: Expr):
+        value = self._parse(expr)
+        if any(max(abs(n.p), n.q).bit_length() > MAX_NUMBER_BITS for n in value.atoms(sympy.Rational)):
+            raise self.error(f"a number here is too large (more than {MAX_NUMBER_BITS} bits); float64 code cannot "
+                             "use it: rescale the problem", expr.loc)
+        return value
+
+    def _parse(self, expr: Expr):
         if expr.number is not None:
             return _number_from_text(expr.text, expr.number)
         text = expr.text
@@ -151,6 +159,8 @@ class ExpressionParser:
         except SyntaxError as exc:
             col = (exc.offset or 1) - 1 if exc.lineno in (None, 1) else 0
             msg = exc.msg.split(" (")[0]
+            if exc.lineno in (None, 1) and exc.offset == 0:  # Python reports the end of the input as offset 0
+                col, msg = len(text.rstrip()), "unexpected end of expression"
             raise self.error(f"syntax error in expression: {msg}; expressions use + - * / ** and f(x)",
                              expr.at(col)) from None
         except (RecursionError, MemoryError, ValueError) as exc:
@@ -207,6 +217,10 @@ class ExpressionParser:
                 if b == 0:
                     raise self.error("division by zero", self._at(node))
                 return a / b
+            if a.is_Rational and b.is_Rational and max(abs(a.p), a.q) > 1 and \
+                    max(abs(a.p), a.q).bit_length() * abs(b) > MAX_NUMBER_BITS:  # before sympy computes it exactly
+                raise self.error(f"`{self._segment(node)}` is too large a number (more than {MAX_NUMBER_BITS} bits); "
+                                 "float64 code cannot use it: rescale the problem", self._at(node))
             return sympy.Pow(a, b)
         if isinstance(node, ast.UnaryOp):
             if isinstance(node.op, ast.USub):
@@ -275,7 +289,19 @@ class ExpressionParser:
             pieces.append((self._value(node.args[-1], depth + 1), True))
             return sympy.Piecewise(*pieces)
         args = [self._value(a, depth + 1) for a in node.args]
-        return ctor(*args)
+        if fname == "mod" and args[1] == 0:
+            raise self.error("division by zero: `mod(x, 0)`", self._at(node))
+        return self._apply(node, f"`{fname}`", ctor, *args)
+
+    def _apply(self, node: ast.AST, what: str, fn, *args):
+        """sympy refuses some constant arguments (complex, nan) with TypeError/ValueError: report them at the call."""
+        try:
+            return fn(*args)
+        except (TypeError, ValueError) as exc:
+            why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise self.error(f"{what} cannot be evaluated here ({why}); its arguments must be real and defined "
+                             "(check for complex results such as log(-1) or acos(2), and for inf - inf)",
+                             self._at(node)) from None
 
     # -- conditions ------------------------------------------------------------------------------------------
     def _condition(self, node: ast.AST, depth: int):
@@ -287,7 +313,7 @@ class ExpressionParser:
                 rel = _COMPARE.get(type(op))
                 if rel is None:
                     raise self.error("only < <= > >= == != comparisons are allowed", self._at(node))
-                parts.append(rel(a, b))
+                parts.append(self._apply(node, "the comparison", rel, a, b))
             return sympy.And(*parts)
         if isinstance(node, ast.BoolOp):
             parts = [self._condition(v, depth + 1) for v in node.values]
@@ -299,12 +325,18 @@ class ExpressionParser:
 
 def _number_from_text(text: str, value) -> sympy.Expr:
     """An exact sympy number for a literal: decimals become rationals so no binary rounding enters the IR."""
+    if isinstance(value, float) and math.isnan(value):
+        return sympy.nan
     if isinstance(value, float) and not math.isfinite(value):
         return sympy.oo if value > 0 else -sympy.oo
     if isinstance(value, int) and not isinstance(value, bool):
         return sympy.Integer(value)
+    digits = text.strip().replace("_", "")
+    exponent = digits.lower().rpartition("e")[2].lstrip("+-").lstrip("0")
     try:
-        frac = fractions.Fraction(text.strip().replace("_", ""))
+        if len(digits) > 400 or ("e" in digits.lower() and len(exponent) > 3):
+            raise ValueError  # the exact value would need a huge integer; the float is what the code can hold
+        frac = fractions.Fraction(digits)
     except (ValueError, ZeroDivisionError):
         frac = fractions.Fraction(value)
     return sympy.Rational(frac.numerator, frac.denominator)
@@ -390,12 +422,12 @@ class _ConstantParser(ExpressionParser):
                          "parameter-only definitions", allow_inf=True)
 
     def _name(self, node):
-        if node.id in self.namespace and self.namespace[node.id] is None:
-            raise self.error(f"`{node.id}` is not a constant; bounds, initial and final values, horizon and guesses "
-                             "may use only numbers, pi, inf, parameters and parameter-only definitions", self._at(node))
         if node.id == "t":
             raise self.error("the time `t` is not a constant; it can be used in dynamics and costs only",
                              self._at(node))
+        if node.id in self.namespace and self.namespace[node.id] is None:
+            raise self.error(f"`{node.id}` is not a constant; bounds, initial and final values, horizon and guesses "
+                             "may use only numbers, pi, inf, parameters and parameter-only definitions", self._at(node))
         return super()._name(node)
 
 
