@@ -1,6 +1,24 @@
-"""myriad.runtime: what consumes generated systems (no sympy is imported here, except to compile specs by path)."""
+"""myriad.runtime: what consumes generated systems (no sympy is imported here, except to compile specs by path).
 
+    from myriad.runtime import load, solve, MultipleShooting, Ipopt
+    sol = solve(load("van_der_pol"), MultipleShooting(intervals=20), Ipopt(tol=1e-8))
+"""
+
+from .integrators import RK4 as RK4, Adaptive as Adaptive, Euler as Euler, Heun as Heun, Midpoint as Midpoint
 from .loader import load as load
+from .simulate import simulate as simulate
+from .solve import Solution as Solution, solve as solve, solve_batch as solve_batch
+from .solvers import SLSQP as SLSQP, Extragradient as Extragradient, Ipopt as Ipopt
 from .system import OptimalControlUnavailable as OptimalControlUnavailable, System as System
+from .transcriptions import ForwardBackwardSweep as ForwardBackwardSweep
+from .transcriptions import HermiteSimpson as HermiteSimpson
+from .transcriptions import MultipleShooting as MultipleShooting
+from .transcriptions import SingleShooting as SingleShooting
+from .transcriptions import Trapezoidal as Trapezoidal
 
-__all__ = ["load", "System", "OptimalControlUnavailable"]
+__all__ = [
+    "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable",
+    "Euler", "Heun", "Midpoint", "RK4", "Adaptive",
+    "SingleShooting", "MultipleShooting", "Trapezoidal", "HermiteSimpson", "ForwardBackwardSweep",
+    "Ipopt", "SLSQP", "Extragradient",
+]

@@ -1,0 +1,28 @@
+"""NLP solvers: each turns an :class:`~myriad.runtime.nlp.NLP` and its ``data`` into an ``NLPResult``.
+
+``SOLVERS`` maps a solver's registry name to its class; tests iterate over it and a meta-test checks that every
+concrete solver in this package is registered. See README.md for adding one.
+"""
+
+from .base import AbstractNLPSolver as AbstractNLPSolver
+from .base import constraint_violation as constraint_violation
+from .extragradient import Extragradient as Extragradient
+from .extragradient import ExtragradientSolution as ExtragradientSolution
+from .ipopt import Ipopt as Ipopt
+from .slsqp import SLSQP as SLSQP
+
+SOLVERS: dict[str, type[AbstractNLPSolver]] = {
+    "ipopt": Ipopt,
+    "slsqp": SLSQP,
+    "extragradient": Extragradient,
+}
+
+__all__ = [
+    "AbstractNLPSolver",
+    "Extragradient",
+    "ExtragradientSolution",
+    "Ipopt",
+    "SLSQP",
+    "SOLVERS",
+    "constraint_violation",
+]

@@ -34,6 +34,7 @@ __all__ = [
     "cached",
     "canonical_data",
     "constraint_violation",
+    "split_constraints",
 ]
 
 T = TypeVar("T")
@@ -91,6 +92,20 @@ def constraint_violation(nlp: NLP, z: Any, c: Any | None) -> float:
         return float("inf")
     with np.errstate(invalid="ignore"):  # inf - inf never occurs (finite z and c), but keep NumPy quiet regardless
         return float(np.nanmax(np.concatenate(parts)))
+
+
+def split_constraints(c_lower: np.ndarray, c_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices of the equalities and of the finite upper and lower bounds of the inequalities.
+
+    Row ``i`` is an equality where ``c_lower[i] == c_upper[i]`` (finite); otherwise each finite side is a one-sided
+    inequality, so a two-sided row appears in both ``upper`` and ``lower`` and a row free on both sides in neither.
+
+    Returns:
+        (eq, upper, lower) int index arrays into the constraint vector.
+    """
+    c_lower, c_upper = np.asarray(c_lower), np.asarray(c_upper)
+    eq = (c_lower == c_upper) & np.isfinite(c_lower)
+    return np.flatnonzero(eq), np.flatnonzero(~eq & np.isfinite(c_upper)), np.flatnonzero(~eq & np.isfinite(c_lower))
 
 
 # ---- variable scaling ----------------------------------------------------------------------------------------
@@ -172,7 +187,7 @@ def canonical_data(data: Any) -> Any:
 
 def _signature(args: tuple) -> Hashable:
     leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), np.result_type(x)) for x in leaves)
+    return treedef, tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
 
 
 class CompiledFunction:

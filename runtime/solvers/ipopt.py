@@ -21,13 +21,17 @@ from .base import (
     constraint_violation,
     initial_point,
 )
-from .sparse import compressed_hessian_fn, compressed_jacobian_fn, dense_hessian_fn, hessian_structure
+from .sparse import HessianColouring, compressed_jacobian_fn, dense_from_hvps, hessian_structure, hvp_batch_fn
 
 __all__ = ["Ipopt"]
 
 # IPOPT reads bounds at or beyond +-1e19 (nlp_{lower,upper}_bound_inf) as absent.
 _IPOPT_INF = 1e20
 _HESSIAN_MODES = ("exact", "limited-memory")
+# Hessian-vector products per call of the one compiled second-order program: detection takes n / 16 calls once,
+# every Hessian ceil(colours / 16) calls. Larger wastes padded products on banded Hessians (often < 16 colours);
+# smaller means more calls for dense ones.
+_HVP_BATCH = 16
 # Statuses that mean "converged"; every other status (including 6, Feasible_Point_Found) is a failure.
 _CONVERGED = {0: "Solve_Succeeded", 1: "Solved_To_Acceptable_Level"}
 
@@ -55,9 +59,10 @@ class Ipopt(AbstractNLPSolver):
       entries when no sparsity is given.
     * Hessian: the pattern is detected numerically once per NLP, as the union of the non-zeros of the dense Lagrangian
       Hessian at two random points near the first starting point with random multipliers (plus the diagonal);
-      values then come from coloured Hessian-vector products. An entry is missed only if it vanishes at both random
-      points for the first solve's ``data`` (e.g. a term multiplied by a parameter that is exactly zero there);
-      pass ``hessian="limited-memory"`` for such problems.
+      values then come from coloured Hessian-vector products, 16 per call of one compiled program that serves
+      the detection too (a second-order program is the costliest thing to compile). An entry is missed only if
+      it vanishes at both random points for the first solve's ``data`` (e.g. a term multiplied by a parameter
+      that is exactly zero there); pass ``hessian="limited-memory"`` for such problems.
     * Bounds are kept exact (``bound_relax_factor = 0``, ``honor_original_bounds = yes``): a solver that steps a hair
       outside a control box stalls on dynamics that are undefined there.
 
@@ -122,7 +127,13 @@ class Ipopt(AbstractNLPSolver):
             cu=_finite(problem.c_upper),
         )
         for name, value in self.ipopt_options().items():
-            ipopt.add_option(name, value)
+            try:
+                ipopt.add_option(name, value)
+            except TypeError as error:  # cyipopt's only word for an unknown name or a value of the wrong type
+                raise ValueError(
+                    f"Ipopt: IPOPT {'.'.join(map(str, cyipopt.IPOPT_VERSION))} rejected the option {name}={value!r} "
+                    f"(unknown name, or a value of the wrong type: int, float or str)"
+                ) from error
         start = time.perf_counter()
         w, info = ipopt.solve(w0)
         solve_seconds = time.perf_counter() - start
@@ -132,14 +143,7 @@ class Ipopt(AbstractNLPSolver):
         violation = constraint_violation(nlp, z, c)
         objective = float(info["obj_val"])
         status = int(info["status"])
-        message = info["status_msg"]
-        message = message.decode() if isinstance(message, bytes) else str(message)
-        success = status in _CONVERGED and violation <= self.constr_viol_tol and np.isfinite(objective)
-        if status in _CONVERGED and not success:
-            message = (
-                f"IPOPT reported {_CONVERGED[status]}, but the constraint violation {violation:.3g} exceeds "
-                f"constr_viol_tol={self.constr_viol_tol:.3g} (or the objective is not finite): {message}"
-            )
+        success, message = judge(status, info["status_msg"], violation, objective, self.constr_viol_tol)
         return NLPResult(
             z=z,
             objective=objective,
@@ -152,6 +156,27 @@ class Ipopt(AbstractNLPSolver):
             compile_seconds=compile_seconds,
             solve_seconds=solve_seconds,
         )
+
+
+def judge(
+    status: int, message: bytes | str, violation: float, objective: float, constr_viol_tol: float
+) -> tuple[bool, str]:
+    """IPOPT's exit status as (success, message).
+
+    Success needs all three: a converged status (``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``; the latter
+    only means IPOPT's looser ``acceptable_*`` tolerances held, e.g. a violation up to 1e-2), our own constraint
+    violation within ``constr_viol_tol``, and a finite objective. Every other status, including
+    ``Feasible_Point_Found`` (6), is a failure and keeps IPOPT's message.
+    """
+    message = message.decode() if isinstance(message, bytes) else str(message)
+    if status not in _CONVERGED:
+        return False, message
+    if violation <= constr_viol_tol and np.isfinite(objective):
+        return True, message
+    return False, (
+        f"IPOPT reported {_CONVERGED[status]}, but the constraint violation {violation:.3g} exceeds "
+        f"constr_viol_tol={constr_viol_tol:.3g} or the objective {objective:.6g} is not finite: {message}"
+    )
 
 
 def _finite(bounds: np.ndarray) -> np.ndarray:
@@ -187,9 +212,17 @@ class _Derivatives:
 
             return jax.grad(lagrangian)(w)
 
-        self._lagrangian_gradient = lagrangian_gradient
-        self.hessian: CompiledFunction | None = None  # built by `prepare`: its pattern needs a point and data
+        # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn.
+        self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient))
+        self.hvp_batch = min(n, _HVP_BATCH)
+        # Built by `prepare`: the pattern needs a point and data.
         self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None
+        self.hessian_colouring: HessianColouring | None = None
+
+    def hvp_args(self, w0: np.ndarray, data: Any) -> tuple:
+        """Example arguments of ``self.hvps`` (its signature)."""
+        seeds = np.zeros((self.hvp_batch, self.problem.n_variables))
+        return w0, seeds, np.float64(1.0), np.zeros(self.problem.n_constraints), data
 
     def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
@@ -198,29 +231,31 @@ class _Derivatives:
         if m:
             seconds += self.constraints.compile(w0, data) + self.jacobian.compile(w0, data)
         if exact:
-            if self.hessian is None:
+            seconds += self.hvps.compile(*self.hvp_args(w0, data))
+            if self.hessian_structure is None:
                 start = time.perf_counter()
-                self._build_hessian(w0, data)
+                self._detect_hessian(w0, data)
                 seconds += time.perf_counter() - start
-            seconds += self.hessian.compile(w0, np.float64(1.0), np.zeros(m), data)
         return seconds
 
-    def _build_hessian(self, w0: np.ndarray, data: Any) -> None:
-        """Detect the Hessian pattern at random points near ``w0`` (see :class:`Ipopt`) and compile its values."""
+    def _detect_hessian(self, w0: np.ndarray, data: Any) -> None:
+        """The Hessian pattern from dense Hessians at random points near ``w0`` (see :class:`Ipopt`)."""
         p, n, m = self.problem, self.problem.n_variables, self.problem.n_constraints
-        dense = jax.jit(dense_hessian_fn(self._lagrangian_gradient, n))
+        hvps = self.hvps.executable(*self.hvp_args(w0, data))
         rng = np.random.default_rng(0)  # deterministic: the same NLP always gets the same pattern
         samples = []
         for _ in range(2):
             w = np.clip(w0 + 0.1 * (1.0 + np.abs(w0)) * rng.standard_normal(n), p.w_lower, p.w_upper)
             lam = rng.uniform(1.0, 2.0, m) * rng.choice([-1.0, 1.0], m)
-            samples.append(np.asarray(dense(w, np.float64(1.0), lam, data)))
+            samples.append(dense_from_hvps(lambda seeds: hvps(w, seeds, np.float64(1.0), lam, data), n, self.hvp_batch))
         rows, cols = hessian_structure(samples, n)
         self.hessian_structure = (rows, cols)
-        self.hessian = CompiledFunction(compressed_hessian_fn(self._lagrangian_gradient, rows, cols, n))
+        self.hessian_colouring = HessianColouring(rows, cols, n, self.hvp_batch)
 
 
-def _validated_sparsity(sparsity: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def _validated_sparsity(
+    sparsity: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
     rows, cols = (np.asarray(a, dtype=np.int64).ravel() for a in sparsity)
     if rows.shape != cols.shape:
         raise ValueError(f"jacobian_sparsity: rows and cols differ in length ({rows.size} vs {cols.size})")
@@ -251,7 +286,8 @@ class _Callbacks:
             self._c = self._jac = lambda w, data: empty
             self._jac_structure = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         if exact:
-            self._hess = fns.hessian.executable(w0, np.float64(1.0), np.zeros(m), data)
+            self._hvps = fns.hvps.executable(*fns.hvp_args(w0, data))
+            self._colouring = fns.hessian_colouring
             self._hess_structure = fns.hessian_structure
             # cyipopt finds the callbacks by attribute; without `hessian`, IPOPT must approximate it.
             self.hessian = self._hessian
@@ -273,7 +309,8 @@ class _Callbacks:
         return self._jac_structure
 
     def _hessian(self, w, lagrange, obj_factor):
-        return np.asarray(self._hess(w, np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64), self._data))
+        sigma, lam = np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64)
+        return self._colouring.values(lambda seeds: self._hvps(w, seeds, sigma, lam, self._data))
 
     def intermediate(self, alg_mod, iter_count, *args):
         self.iterations = int(iter_count)

@@ -26,11 +26,12 @@ import numpy as np
 import scipy.sparse as sp
 
 __all__ = [
+    "HessianColouring",
     "color_columns",
     "compressed_jacobian_fn",
-    "compressed_hessian_fn",
-    "dense_hessian_fn",
+    "dense_from_hvps",
     "hessian_structure",
+    "hvp_batch_fn",
 ]
 
 
@@ -85,43 +86,53 @@ def compressed_jacobian_fn(
     return values
 
 
-def compressed_hessian_fn(
-    grad_fn: Callable[..., Any], rows: np.ndarray, cols: np.ndarray, n: int
-) -> Callable[..., Any]:
-    """``(w, *args) -> values`` of the Hessian (the Jacobian of ``grad_fn(w, *args)``) at ``(rows, cols)``.
+def hvp_batch_fn(grad_fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``(w, seeds, *args) -> seeds @ H``: one forward-over-reverse Hessian-vector product per row of ``seeds``.
 
-    ``(rows, cols)`` may be the lower triangle only: the colouring is done on the symmetric completion, so the
-    columns of one colour share no row of the full matrix and each requested entry is recovered exactly.
-    """
-    full_rows = np.concatenate([rows, cols])
-    full_cols = np.concatenate([cols, rows])
-    colours = color_columns(full_rows, full_cols, (n, n))
-    seeds = jnp.asarray(_seeds(colours))
-    take_colour, take_row = jnp.asarray(colours[cols]), jnp.asarray(rows)
-
-    def values(w, *args):
-        hvp = lambda v: jax.jvp(lambda w_: grad_fn(w_, *args), (w,), (v,))[1]  # noqa: E731
-        compressed = jax.vmap(hvp)(seeds)  # (K, n): row k is H @ seed_k
-        return compressed[take_colour, take_row]
-
-    return values
-
-
-def dense_hessian_fn(grad_fn: Callable[..., Any], n: int, batch_size: int = 64) -> Callable[..., Any]:
-    """``(w, *args) -> H`` (n, n), one Hessian-vector product per column, ``batch_size`` at a time.
-
-    Only used once per NLP to detect the sparsity pattern; ``lax.map`` in batches bounds the memory to
-    ``batch_size`` simultaneous products instead of ``n``.
+    ``H`` is the Jacobian of ``grad_fn(w, *args)`` (symmetric when ``grad_fn`` is a gradient). The seeds are an
+    argument, not a constant, so one compiled program of a fixed batch serves both the one-off pattern detection
+    (identity seeds) and every later evaluation (colour seeds): a second-order program is the most expensive thing
+    a solver compiles.
     """
 
-    def hessian(w, *args):
-        def column(i):
-            e = jnp.zeros(n, dtype=w.dtype).at[i].set(1.0)
-            return jax.jvp(lambda w_: grad_fn(w_, *args), (w,), (e,))[1]
+    def hvps(w, seeds, *args):
+        return jax.vmap(lambda v: jax.jvp(lambda w_: grad_fn(w_, *args), (w,), (v,))[1])(seeds)
 
-        return jax.lax.map(column, jnp.arange(n), batch_size=min(n, batch_size)).T
+    return hvps
 
-    return hessian
+
+def dense_from_hvps(hvps: Callable[[np.ndarray], np.ndarray], n: int, batch: int) -> np.ndarray:
+    """The dense ``n x n`` Hessian from ``hvps(seeds (batch, n)) -> (batch, n)``, ``batch`` columns per call."""
+    columns = []
+    for start in range(0, n, batch):
+        seeds = np.zeros((batch, n))
+        idx = np.arange(start, min(start + batch, n))
+        seeds[idx - start, idx] = 1.0
+        columns.append(np.asarray(hvps(seeds))[: idx.size])
+    return np.concatenate(columns).T  # row i of the stack is H e_i, the i-th column
+
+
+class HessianColouring:
+    """Recover the entries ``(rows, cols)`` of a symmetric Hessian from products with colour seeds.
+
+    The colouring is done on the symmetric completion of the pattern (so ``(rows, cols)`` may be the lower triangle
+    only): columns of one colour share no row of the full matrix, and each requested entry is read off directly.
+    The ``K`` colour seeds are padded to whole batches of ``batch`` rows for :func:`hvp_batch_fn`'s program.
+    """
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int, batch: int):
+        colours = color_columns(np.concatenate([rows, cols]), np.concatenate([cols, rows]), (n, n))
+        seeds = _seeds(colours)
+        self.n_colours = seeds.shape[0]
+        padded = np.zeros((-(-self.n_colours // batch) * batch, n))
+        padded[: self.n_colours] = seeds
+        self.seed_batches = [padded[i : i + batch] for i in range(0, padded.shape[0], batch)]
+        self._take = (colours[cols], rows)
+
+    def values(self, hvps: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The requested entries, given ``hvps(seeds (batch, n)) -> (batch, n)`` at the point of interest."""
+        compressed = np.concatenate([np.asarray(hvps(seeds)) for seeds in self.seed_batches])  # (K, n): S_k H
+        return compressed[self._take]
 
 
 def hessian_structure(dense_hessians: list[np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray]:

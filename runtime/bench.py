@@ -1,0 +1,131 @@
+"""The reference table: every system in the published setting, plus the best over all transcriptions.
+
+Published setting (Table A of the paper): single shooting, 100 control intervals with controls at the 101 nodes
+linearly interpolated, Heun, IPOPT; state bounds enforced on the shooting node (the final state). A system meets its
+target when it converged, its cost is at most target + 0.5 % of |target| and every required final value is met to
+1e-6 (see the environment reference).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Callable
+
+from .integrators import RK4, Heun
+from .loader import load
+from .solve import Solution, solve
+from .solvers import Ipopt
+from .transcriptions import ForwardBackwardSweep, HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
+
+__all__ = ["BenchRow", "run_bench", "markdown_table", "PUBLISHED_SETTING", "ALTERNATIVES", "meets_target"]
+
+PUBLISHED_SETTING = SingleShooting(controls=100, integrator=Heun())
+ALTERNATIVES = (
+    MultipleShooting(intervals=50, steps_per_interval=2, integrator=RK4()),
+    Trapezoidal(intervals=100),
+    HermiteSimpson(intervals=50),
+)
+DEFECT_TOL = 1e-6
+
+
+def meets_target(sol: Solution, target: float | None) -> bool | None:
+    if target is None:
+        return None
+    return bool(sol.converged and sol.cost <= target + 0.005 * abs(target) and sol.max_defect <= DEFECT_TOL)
+
+
+@dataclasses.dataclass
+class BenchRow:
+    system: str
+    published: float | None
+    target: float | None
+    main: Solution
+    meets: bool | None
+    best: Solution | None = None
+    alternatives: list[Solution] = dataclasses.field(default_factory=list)
+    wall_seconds: float = 0.0
+
+    def records(self) -> list[dict]:
+        out = []
+        for sol in [self.main, *self.alternatives]:
+            rec = sol.record()
+            rec.update(published=self.published, target=self.target)
+            if sol is self.main:
+                rec.update(setting="published", meets_target=self.meets)
+            else:
+                rec.update(setting="alternative", best=sol is self.best)
+            out.append(rec)
+        return out
+
+
+def _best(solutions: list[Solution]) -> Solution | None:
+    """Lowest re-simulated cost among converged solves (the one comparison fair across discretisations)."""
+    ok = [s for s in solutions if s.converged and math.isfinite(s.simulated_cost)]
+    return min(ok, key=lambda s: s.simulated_cost) if ok else None
+
+
+def run_bench(names, *, alternatives: bool = True, solver=None, progress: Callable[[str], None] | None = None,
+              plots_dir=None) -> list[BenchRow]:
+    solver = solver or Ipopt()
+    rows = []
+    for name in names:
+        t0 = time.perf_counter()
+        system = load(name)
+        ref = dict(system.reference)
+        main = solve(system, PUBLISHED_SETTING, solver)
+        row = BenchRow(name, ref.get("published"), ref.get("target"), main, meets_target(main, ref.get("target")))
+        if alternatives:
+            methods = list(ALTERNATIVES)
+            if system.optimal_control_kind == "stationary":
+                methods.append(ForwardBackwardSweep(intervals=1000))
+            for tr in methods:
+                try:
+                    row.alternatives.append(solve(system, tr, solver))
+                except Exception as exc:  # one method failing must not lose the table; it is recorded as such
+                    if progress:
+                        progress(f"  {name}: {type(tr).__name__} failed: {exc}")
+            row.best = _best([main, *row.alternatives])
+        row.wall_seconds = time.perf_counter() - t0
+        if plots_dir is not None:
+            from .plotting import plot_solution
+
+            plot_solution(main, f"{plots_dir}/{name}.png", system)
+        if progress:
+            progress(_line(row))
+        rows.append(row)
+    return rows
+
+
+def _f(v, fmt="{:.6g}") -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+
+
+def _line(row: BenchRow) -> str:
+    m = row.main
+    verdict = {True: "meets target", False: "MISSES target", None: "no target"}[row.meets]
+    text = (f"{row.system:18s} cost {m.cost:12.6g} (target {_f(row.target)}) defect {m.max_defect:.1e} {verdict}; "
+            f"compile {m.compile_seconds:.2f} s solve {m.solve_seconds:.2f} s")
+    if row.best is not None:
+        text += f"; best {row.best.transcription} {row.best.simulated_cost:.6g} (re-simulated)"
+    return text
+
+
+def markdown_table(rows: list[BenchRow], total_seconds: float | None = None) -> str:
+    head = ("| system | published | target | cost | max defect | converged | meets target | compile s | solve s "
+            "| re-simulated cost | best transcription | its re-simulated cost | its defect |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in rows:
+        m, b = r.main, r.best
+        lines.append("| " + " | ".join([
+            r.system, _f(r.published), _f(r.target), _f(m.cost, "{:.4f}"), _f(m.max_defect, "{:.1e}"),
+            "yes" if m.converged else "NO", {True: "yes", False: "NO", None: "-"}[r.meets],
+            _f(m.compile_seconds, "{:.2f}"), _f(m.solve_seconds, "{:.2f}"), _f(m.simulated_cost, "{:.4f}"),
+            b.transcription if b else "-", _f(b.simulated_cost, "{:.4f}") if b else "-",
+            _f(max((abs(d) for d in b.simulated_defect), default=0.0), "{:.1e}") if b else "-",
+        ]) + " |")
+    if total_seconds is not None:
+        lines.append("")
+        lines.append(f"Total wall time: {total_seconds:.1f} s.")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,159 @@
+"""``myriad``: solve one system, or run the reference table. A thin argparse shell over :mod:`myriad.runtime`.
+
+Exit codes: 0 ok, 1 a solve failed or missed its target, 2 usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+__all__ = ["main"]
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.print_usage(sys.stderr)
+        print(f"myriad: error: {message}", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def _parser():
+    p = _Parser(prog="myriad", description="Trajectory optimisation on myriad systems.")
+    p.add_argument("-v", "--verbose", action="store_true", help="tracebacks on internal errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    s = sub.add_parser("solve", help="solve one system")
+    s.add_argument("system", metavar="NAME|PATH")
+    s.add_argument("--transcription", default="single_shooting",
+                   choices=["single_shooting", "multiple_shooting", "trapezoidal", "hermite_simpson", "fbsm"])
+    s.add_argument("--solver", default="ipopt", choices=["ipopt", "slsqp", "extragradient"])
+    s.add_argument("--integrator", default=None, choices=["euler", "heun", "midpoint", "rk4"],
+                   help="for the shooting transcriptions (default: heun for single, rk4 for multiple shooting)")
+    s.add_argument("--controls", type=int, default=None, metavar="N", help="control intervals (grid size)")
+    s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
+    s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
+    b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
+    b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
+    b.add_argument("--json", metavar="FILE")
+    b.add_argument("--markdown", metavar="FILE")
+    b.add_argument("--plots", metavar="DIR", help="one PNG per system (published-setting solution)")
+    b.add_argument("--published-only", action="store_true", help="skip the other transcriptions")
+    return p
+
+
+def _configure_jax():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # trajectory optimisation needs float64
+
+
+def _transcription(args):
+    from .integrators import INTEGRATORS
+    from .transcriptions import INDIRECT, TRANSCRIPTIONS
+
+    kwargs = {}
+    if args.integrator:
+        if args.transcription not in ("single_shooting", "multiple_shooting"):
+            raise SystemExit(_usage(f"--integrator applies to the shooting transcriptions, not {args.transcription}"))
+        kwargs["integrator"] = INTEGRATORS[args.integrator]()
+    if args.controls is not None:
+        if args.controls < 1:
+            raise SystemExit(_usage("--controls must be at least 1"))
+        kwargs["controls" if args.transcription == "single_shooting" else "intervals"] = args.controls
+    cls = TRANSCRIPTIONS.get(args.transcription) or INDIRECT[args.transcription]
+    return cls(**kwargs)
+
+
+def _usage(message):
+    print(f"myriad: error: {message}", file=sys.stderr)
+    return 2
+
+
+def _cmd_solve(args) -> int:
+    _configure_jax()
+    from . import load, solve
+    from .solvers import SOLVERS
+
+    system = load(args.system)
+    sol = solve(system, _transcription(args), SOLVERS[args.solver]())
+    state = "converged" if sol.converged else "NOT CONVERGED"
+    print(f"{system.name}: {sol.transcription} + {sol.solver} ({sol.integrator}): {state} after {sol.iterations} "
+          f"iterations ({sol.message})")
+    print(f"  cost {sol.cost:.8g}   defect {[f'{d:.2e}' for d in sol.defect] or 'none required'}   "
+          f"constraint violation {sol.constraint_violation:.2e}")
+    print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
+          f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
+    print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s")
+    if args.json:
+        rec = sol.record()
+        rec.update(times=sol.times.tolist(), states=sol.states.tolist(), controls=sol.controls.tolist())
+        with open(args.json, "w") as fh:
+            json.dump(rec, fh, indent=1)
+    if args.plot:
+        from .plotting import plot_solution
+
+        plot_solution(sol, args.plot, system)
+        print(f"  plot: {args.plot}")
+    return 0 if sol.converged else 1
+
+
+def _cmd_bench(args) -> int:
+    _configure_jax()
+    from .bench import markdown_table, run_bench
+    from .systems import NAMES
+
+    names = args.systems or list(NAMES)
+    unknown = [n for n in names if n not in NAMES]
+    if unknown:
+        return _usage(f"unknown systems {unknown}; shipped: {', '.join(NAMES)}")
+    if args.plots:
+        os.makedirs(args.plots, exist_ok=True)
+    t0 = time.perf_counter()
+    rows = run_bench(names, alternatives=not args.published_only, progress=lambda s: print(s, flush=True),
+                     plots_dir=args.plots)
+    total = time.perf_counter() - t0
+    table_seconds = sum(r.main.compile_seconds + r.main.solve_seconds for r in rows)
+    table = markdown_table(rows, total)
+    print()
+    print(table)
+    print(f"published-setting table: {sum(1 for r in rows if r.meets)} / {len(rows)} meet their target; "
+          f"compile + solve {table_seconds:.1f} s; whole bench {total:.1f} s wall")
+    if args.markdown:
+        with open(args.markdown, "w") as fh:
+            fh.write(table)
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump([rec for r in rows for rec in r.records()], fh, indent=1)
+    return 0 if all(r.meets is not False for r in rows) else 1
+
+
+def main(argv=None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return {"solve": _cmd_solve, "bench": _cmd_bench}[args.command](args)
+    except KeyError as exc:
+        print(f"myriad: error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except Exception as exc:
+        from myriad.compiler import SpecError, SpecErrors
+
+        if isinstance(exc, (SpecError, SpecErrors)):
+            print(str(exc), file=sys.stderr)
+            return 1
+        if args.verbose:
+            raise
+        print(f"myriad: internal error: {type(exc).__name__}: {exc} (rerun with -v for a traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
