@@ -52,7 +52,8 @@ def plot_solution(solution, path: str | os.PathLike, system=None) -> str:
             lo, hi = system.x_lower[i], system.x_upper[i]
             target = system.x_final[i]
             if target is not None:
-                ax.plot([t[-1]], [target], "o", mfc="none", color="C3", label=f"required x(T) = {target:g}")
+                ax.plot([t[-1]], [target], "o", mfc="none", color="C3",
+                        label=f"required {system.state_names[i]}(T) = {target:g}")
                 ax.legend(loc="best", fontsize=7, frameon=False)
             ax.set_ylabel(_label(system.state_names[i], system.state_descriptions[i], system.state_units[i]),
                           fontsize=8)

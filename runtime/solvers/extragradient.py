@@ -36,7 +36,7 @@ _MESSAGES = {
 # Iterations between checks of the constraint violation's progress (see Extragradient, "Penalty"). Checking
 # every 500 with a demand to halve the violation grew the penalty on HS71 during its slow start and stalled it.
 _PENALTY_CHECK = 2000
-# Where the sigmoid starts a variable that sits on its bound: logit(1e-3) = -6.9 keeps sigma' ~ 1e-3, not 0.
+# Where the sigmoid starts a variable that sits on its bound: logit(1e-2) = -4.6 keeps sigma' ~ 1e-2, not 0.
 _SIGMOID_MARGIN = 1e-2
 
 

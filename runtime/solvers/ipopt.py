@@ -15,6 +15,7 @@ from ..nlp import NLP, NLPResult
 from .base import (
     AbstractNLPSolver,
     CompiledFunction,
+    compile_many,
     ScaledProblem,
     cached,
     canonical_data,
@@ -227,11 +228,12 @@ class _Derivatives:
     def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
         m = self.problem.n_constraints
-        seconds = self.objective.compile(w0, data) + self.gradient.compile(w0, data)
+        jobs = [(self.hvps, self.hvp_args(w0, data))] if exact else []
+        jobs += [(self.gradient, (w0, data)), (self.objective, (w0, data))]
         if m:
-            seconds += self.constraints.compile(w0, data) + self.jacobian.compile(w0, data)
+            jobs += [(self.jacobian, (w0, data)), (self.constraints, (w0, data))]
+        seconds = compile_many(jobs)
         if exact:
-            seconds += self.hvps.compile(*self.hvp_args(w0, data))
             if self.hessian_structure is None:
                 start = time.perf_counter()
                 self._detect_hessian(w0, data)
