@@ -33,6 +33,10 @@ _HESSIAN_MODES = ("exact", "limited-memory")
 # every Hessian ceil(colours / 16) calls. Larger wastes padded products on banded Hessians (often < 16 colours);
 # smaller means more calls for dense ones.
 _HVP_BATCH = 16
+# A transcription without a Jacobian pattern (single shooting) has a dense Hessian: one call of n products is then
+# 2-4x cheaper per Hessian than ceil(n / 16) calls, for the same compile time (measured on Timber Harvest and
+# Cart-Pole, n = 101). Capped so the program stays small.
+_DENSE_HVP_MAX = 512
 # Statuses that mean "converged"; every other status (including 6, Feasible_Point_Found) is a failure.
 _CONVERGED = {0: "Solve_Succeeded", 1: "Solved_To_Acceptable_Level"}
 
@@ -215,7 +219,7 @@ class _Derivatives:
 
         # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn.
         self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient))
-        self.hvp_batch = min(n, _HVP_BATCH)
+        self.hvp_batch = n if jacobian_sparsity is None and n <= _DENSE_HVP_MAX else min(n, _HVP_BATCH)
         # Built by `prepare`: the pattern needs a point and data.
         self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None
         self.hessian_colouring: HessianColouring | None = None
