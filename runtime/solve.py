@@ -46,6 +46,8 @@ class Solution:
         converged: the solver converged within tolerance to a point within its constraint tolerance.
         status, message, iterations, constraint_violation: what the solver said.
         simulated_cost, simulated_defect: the controls re-simulated with the adaptive integrator (NaN if skipped).
+        simulated_bound_violation: the largest state-bound violation along that re-simulation, relative to the
+            bound's magnitude (at least 1): a discretisation can respect bounds at its nodes only.
         compile_seconds, solve_seconds: tracing/compilation vs. the solve itself.
     """
 
@@ -65,6 +67,7 @@ class Solution:
     constraint_violation: float
     simulated_cost: float = math.nan
     simulated_defect: list[float] = dataclasses.field(default_factory=list)
+    simulated_bound_violation: float = math.nan
     compile_seconds: float = 0.0
     solve_seconds: float = 0.0
 
@@ -80,6 +83,7 @@ class Solution:
             "converged": bool(self.converged), "status": str(self.status), "message": self.message,
             "iterations": int(self.iterations), "constraint_violation": _num(self.constraint_violation),
             "simulated_cost": _num(self.simulated_cost), "simulated_defect": [_num(d) for d in self.simulated_defect],
+            "simulated_bound_violation": _num(self.simulated_bound_violation),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }
 
@@ -117,8 +121,8 @@ def _integrator_label(transcription) -> str:
     return {"trapezoidal": "trapezoidal", "hermite_simpson": "simpson", "fbsm": "rk4"}.get(label(transcription), "-")
 
 
-def _resimulate(system: System, times, controls, data) -> tuple[float, list[float]]:
-    """Cost and defect of the controls (linearly interpolated) under the adaptive integrator."""
+def _resimulate(system: System, times, controls, data) -> tuple[float, list[float], float]:
+    """Cost, defect and relative state-bound violation of the controls (linearly interpolated), adaptive integrator."""
     times = np.asarray(times)
     controls = np.asarray(controls)
     grid = np.linspace(0.0, system.horizon, times.shape[0])
@@ -127,7 +131,13 @@ def _resimulate(system: System, times, controls, data) -> tuple[float, list[floa
         controls = np.stack([np.interp(grid, times, controls[:, j]) for j in range(controls.shape[1])], 1)
     sim = simulate(system, controls, data["params"], data["x0"], integrator=Adaptive())
     mask = system.final_mask
-    return float(sim.cost), [float(d) for d in np.asarray(sim.defect)[mask]]
+    a = system.arrays()
+    xs = np.asarray(sim.states)
+    with np.errstate(invalid="ignore"):
+        over = np.maximum(np.maximum(a["x_lower"] - xs, xs - a["x_upper"]), 0.0)
+        size = np.maximum(1.0, np.where(np.isfinite(a["x_upper"]), np.abs(a["x_upper"]), np.abs(a["x_lower"])))
+    over = np.where(np.isnan(over), np.inf, over) / np.where(np.isfinite(size), size, 1.0)
+    return float(sim.cost), [float(d) for d in np.asarray(sim.defect)[mask]], float(over.max(initial=0.0))
 
 
 def solve(
@@ -187,8 +197,9 @@ def solve(
             solve_seconds=float(res.solve_seconds),
         )
     if resimulate:
-        cost, defect = _resimulate(system, sol.times, sol.controls, data)
-        sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect)
+        cost, defect, violation = _resimulate(system, sol.times, sol.controls, data)
+        sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect,
+                                  simulated_bound_violation=violation)
     return sol
 
 

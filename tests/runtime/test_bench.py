@@ -1,0 +1,47 @@
+"""The reference-table logic: what meets a target and which alternative counts as best (no solving here)."""
+
+import dataclasses
+
+import numpy as np
+
+from myriad.runtime.bench import BenchRow, _best, markdown_table, meets_target
+from myriad.runtime.solve import Solution
+
+BASE = Solution(system="s", transcription="single_shooting", solver="ipopt", integrator="heun", times=np.zeros(2),
+                states=np.zeros((2, 1)), controls=np.zeros((2, 1)), cost=10.0, defect=[], converged=True, status=0,
+                message="ok", iterations=3, constraint_violation=0.0, simulated_cost=10.0, simulated_defect=[],
+                simulated_bound_violation=0.0)
+
+
+def test_meets_target_needs_convergence_cost_and_defect():
+    assert meets_target(BASE, 10.0)
+    assert meets_target(dataclasses.replace(BASE, cost=10.05 - 1e-9), 10.0)  # target + 0.5 % of its magnitude
+    assert not meets_target(dataclasses.replace(BASE, cost=10.06), 10.0)
+    assert meets_target(dataclasses.replace(BASE, cost=-7.98), -7.98)
+    assert not meets_target(dataclasses.replace(BASE, defect=[2e-6]), 10.0)
+    assert not meets_target(dataclasses.replace(BASE, converged=False), 10.0)
+    assert meets_target(BASE, None) is None
+
+
+def test_best_ignores_failed_solves_and_missed_final_values():
+    cheap_but_missing = dataclasses.replace(BASE, simulated_cost=5.0, simulated_defect=[1.2])
+    failed = dataclasses.replace(BASE, simulated_cost=1.0, converged=False)
+    good = dataclasses.replace(BASE, transcription="hermite_simpson", simulated_cost=9.0, simulated_defect=[1e-6])
+    assert _best([BASE, cheap_but_missing, failed, good]) is good
+    # When nothing meets its final values, the closest one is reported.
+    far = dataclasses.replace(BASE, simulated_defect=[3.0])
+    assert _best([cheap_but_missing, far]) is cheap_but_missing
+    assert _best([failed]) is None
+
+
+def test_markdown_table_has_one_row_per_system():
+    row = BenchRow("s", 10.0, 10.0, BASE, True, best=BASE)
+    table = markdown_table([row, dataclasses.replace(row, system="t", meets=False)], total_seconds=1.0)
+    lines = table.splitlines()
+    assert lines[0].startswith("| system |") and lines[2].startswith("| s |") and lines[3].startswith("| t |")
+    assert "| NO |" in lines[3]
+
+
+def test_best_ignores_solutions_that_leave_a_bound_when_resimulated():
+    overspent = dataclasses.replace(BASE, simulated_cost=1.0, simulated_bound_violation=0.01)
+    assert _best([BASE, overspent]) is BASE
