@@ -185,17 +185,7 @@ def solve(
     else:
         solver = Ipopt() if solver is None else solver
         nlp = transcribe(system, transcription)
-        res = solver.solve(nlp, data, z0)
-        times, states, controls = (np.asarray(a) for a in _unravel(nlp)(jnp.asarray(res.z), data))
-        final = np.asarray(system.final_values)
-        sol = Solution(
-            system=system.name, transcription=label(transcription), solver=label(solver),
-            integrator=_integrator_label(transcription), times=times, states=states, controls=controls,
-            cost=float(res.objective), defect=[float(d) for d in (states[-1] - final)[mask]],
-            converged=bool(res.success), status=res.status, message=res.message, iterations=int(res.iterations),
-            constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
-            solve_seconds=float(res.solve_seconds),
-        )
+        sol = _solution(system, transcription, solver, nlp, solver.solve(nlp, data, z0), data)
     if resimulate:
         cost, defect, violation = _resimulate(system, sol.times, sol.controls, data)
         sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect,
@@ -239,18 +229,20 @@ def solve_batch(
     data = {"params": p, "x0": xs}
     nlp = transcribe(system, transcription)
     results = solver.solve_batch(nlp, data)
-    mask = system.final_mask
-    final = np.asarray(system.final_values)
-    out = []
-    for i, res in enumerate(results):
-        data_i = jax.tree_util.tree_map(lambda a: a[i], data)
-        times, states, controls = (np.asarray(a) for a in _unravel(nlp)(jnp.asarray(res.z), data_i))
-        out.append(Solution(
-            system=system.name, transcription=label(transcription), solver=label(solver),
-            integrator=_integrator_label(transcription), times=times, states=states, controls=controls,
-            cost=float(res.objective), defect=[float(d) for d in (states[-1] - final)[mask]],
-            converged=bool(res.success), status=res.status, message=res.message, iterations=int(res.iterations),
-            constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
-            solve_seconds=float(res.solve_seconds),
-        ))
-    return out
+    host = jax.device_get(data)  # slice on the host: per-problem device slicing dominated small batches
+    return [_solution(system, transcription, solver, nlp, res, jax.tree_util.tree_map(lambda a: a[i], host))
+            for i, res in enumerate(results)]
+
+
+def _solution(system: System, transcription, solver, nlp: NLP, res, data) -> Solution:
+    """A Solution from an NLP result: the trajectory on the transcription's grid and the discretised defect."""
+    times, states, controls = (np.asarray(a) for a in _unravel(nlp)(jnp.asarray(res.z), data))
+    defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
+    return Solution(
+        system=system.name, transcription=label(transcription), solver=label(solver),
+        integrator=_integrator_label(transcription), times=times, states=states, controls=controls,
+        cost=float(res.objective), defect=[float(d) for d in defect], converged=bool(res.success),
+        status=res.status, message=res.message, iterations=int(res.iterations),
+        constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
+        solve_seconds=float(res.solve_seconds),
+    )
