@@ -236,6 +236,19 @@ def test_extragradient_sigmoid_bounds(case_name):
     assert np.all(result.z >= case.nlp.z_lower) and np.all(result.z <= case.nlp.z_upper)
 
 
+def test_extragradient_scales_a_steep_objective():
+    # The same problem from the origin, where |grad F| = 4000: scaled to 100, plain ascent at a fixed penalty suffices,
+    # and the multipliers come back in the unscaled objective's units.
+    nlp = _nlp(
+        lambda z, d: 1e3 * ((z[0] - 2.0) ** 2 + (z[1] - 1.0) ** 2), lambda z, d: jnp.stack([z[0] + z[1]]),
+        [1.0], [1.0], [-INF, -INF], [INF, INF], [0.0, 0.0], name="steep_objective",
+    )
+    result = Extragradient(penalty_growth=1.0, max_iter=30_000).solve(nlp, NO_DATA)
+    assert result.success, result.message
+    np.testing.assert_allclose(result.z, [1.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(result.multipliers, [2000.0], rtol=1e-5)
+
+
 def test_extragradient_penalty_grows_when_the_violation_stalls():
     # min 1000 |z - (2, 1)|^2 s.t. z1 + z2 = 1: z* = (1, 0) with a large multiplier, y* = 2000. Plain ascent at
     # rho = 1 creeps towards it; growing rho (and the dual step with it) on stalls gets there.
@@ -243,8 +256,9 @@ def test_extragradient_penalty_grows_when_the_violation_stalls():
         lambda z, d: 1e3 * ((z[0] - 2.0) ** 2 + (z[1] - 1.0) ** 2), lambda z, d: jnp.stack([z[0] + z[1]]),
         [1.0], [1.0], [-INF, -INF], [INF, INF], [0.0, 0.0], name="large_multiplier",
     )
-    fixed = Extragradient(penalty_growth=1.0, max_iter=30_000).solve(nlp, NO_DATA)
-    grown = Extragradient(max_iter=30_000).solve(nlp, NO_DATA)
+    # Objective scaling off: it would shrink the multiplier to 50 (tested below); here the penalty must do it.
+    fixed = Extragradient(penalty_growth=1.0, max_iter=30_000, scale_objective=False).solve(nlp, NO_DATA)
+    grown = Extragradient(max_iter=30_000, scale_objective=False).solve(nlp, NO_DATA)
     assert not fixed.success and fixed.status == 1  # iteration limit
     assert grown.success, grown.message
     np.testing.assert_allclose(grown.z, [1.0, 0.0], atol=1e-6)
