@@ -45,3 +45,17 @@ def test_markdown_table_has_one_row_per_system():
 def test_best_ignores_solutions_that_leave_a_bound_when_resimulated():
     overspent = dataclasses.replace(BASE, simulated_cost=1.0, simulated_bound_violation=0.01)
     assert _best([BASE, overspent]) is BASE
+
+
+def test_resample_puts_a_solution_on_another_grid():
+    from myriad.runtime import Trapezoidal, load
+    from myriad.runtime.bench import _resample
+    from myriad.runtime.transcriptions import default_data
+
+    system = load("simple_case")
+    t = np.linspace(0.0, 1.0, 101)
+    sol = dataclasses.replace(BASE, times=t, states=(1 + t ** 2)[:, None], controls=np.sin(t)[:, None])
+    tr = Trapezoidal(intervals=10)
+    times, states, controls = tr.transcribe(system).unravel(_resample(system, tr, sol), default_data(system))
+    np.testing.assert_allclose(np.asarray(states)[1:, 0], (1 + np.asarray(times) ** 2)[1:], atol=1e-4)
+    np.testing.assert_allclose(np.asarray(controls)[:, 0], np.sin(np.asarray(times)), atol=1e-4)
