@@ -390,7 +390,8 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
     constant_ns = dict(const_ns)
     for name, e in definitions.items():
         if e.free_symbols <= set(params):
-            constant_ns[name] = e.subs(numeric_params)
+            # Numerically (30 digits), not by exact substitution: `3**k` with k = 1e9 would build a huge integer.
+            constant_ns[name] = e.evalf(30, subs=numeric_params)
     for name in full_ns:
         constant_ns.setdefault(name, None)  # declared but not constant: explained below
     cparser = _ConstantParser(constant_ns, lines)
