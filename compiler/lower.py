@@ -206,7 +206,6 @@ def safe_comment(text: str) -> str:
 def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
     spec = sym.spec
     d = derive(sym)
-    n, m = len(sym.states), len(sym.controls)
     X, U = sym.states, sym.controls
 
     fns = [
@@ -302,7 +301,9 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         header=header,
         module_doc=_lit(f"{spec.title}: generated JAX system (minimisation form).\n\n{spec.description}"),
         class_name=class_name(spec.name),
-        imports=("import math", "", "import jax.numpy", "", "from myriad.runtime.system import System as _System"),
+        # `math` only where a literal needs it (an infinite bound), so no module imports what it does not use.
+        imports=(("import math", "") if any("math." in lit for _, lit in metadata) else ())
+        + ("import jax.numpy", "", "from myriad.runtime.system import System as _System"),
         metadata=metadata,
         functions=tuple(fns),
         summary=tuple(summary),

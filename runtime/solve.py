@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .integrators import INTEGRATORS, Adaptive, Heun
+from .integrators import INTEGRATORS, Adaptive
 from .loader import load
 from .nlp import NLP
 from .simulate import simulate
