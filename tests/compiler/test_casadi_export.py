@@ -17,25 +17,17 @@ from myriad.compiler.casadi_export import CasadiExportError, export_file, sympy_
 from myriad.compiler.symbolic import wrap_floor, wrap_mod  # noqa: E402
 from myriad.runtime import load  # noqa: E402
 
-from ..helpers import ALL_SPECS, ROOT  # noqa: E402
+from ..helpers import ALL_SPECS, ROOT, sample_interval  # noqa: E402
 
 N_POINTS = 3
 RTOL = 1e-12
 
 
-def _interval(lo, hi, centre, rng, n):
-    """Strictly inside the bounds; an infinite side gets a window scaled by the centre (x0, or 0 for controls)."""
-    width = max(1.0, abs(centre))
-    lo = centre - 2 * width if math.isinf(lo) else lo
-    hi = centre + 2 * width if math.isinf(hi) else hi
-    pad = 1e-3 * (hi - lo)
-    return rng.uniform(lo + pad, hi - pad, size=n) if hi > lo else np.full(n, lo)
-
-
 def _points(cs, seed):
     rng = np.random.default_rng(seed)
-    xs = np.stack([_interval(lo, hi, x0, rng, N_POINTS) for lo, hi, x0 in zip(cs.x_lower, cs.x_upper, cs.x0)], 1)
-    us = np.stack([_interval(lo, hi, 0.0, rng, N_POINTS) for lo, hi in zip(cs.u_lower, cs.u_upper)], 1)
+    xs = np.stack([sample_interval(lo, hi, x0, rng, N_POINTS)
+                   for lo, hi, x0 in zip(cs.x_lower, cs.x_upper, cs.x0)], 1)
+    us = np.stack([sample_interval(lo, hi, 0.0, rng, N_POINTS) for lo, hi in zip(cs.u_lower, cs.u_upper)], 1)
     ts = rng.uniform(0.0, cs.horizon, size=N_POINTS)
     # Parameters off their nominal values (so a mix-up of their order cannot pass), within 10 %.
     ps = np.asarray(cs.param_values) * (1 + 0.1 * rng.uniform(-1, 1, size=(N_POINTS, cs.n_params)))

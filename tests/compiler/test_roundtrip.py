@@ -1,6 +1,5 @@
 """Generated code against mathematics: sympy's own evaluation of the IR, autodiff of the generated functions."""
 
-import math
 
 import jax
 import jax.numpy as jnp
@@ -12,24 +11,16 @@ from myriad.compiler import compile_file
 from myriad.compiler.lower import derive
 from myriad.runtime import load
 
-from ..helpers import ALL_SPECS
+from ..helpers import ALL_SPECS, sample_interval
 
 N_POINTS = 4
 
 
-def _interval(lo, hi, x0, rng, n):
-    """Sample strictly inside the bounds; infinite sides get a window scaled by the initial value."""
-    width = max(1.0, abs(x0))
-    lo = x0 - 2 * width if math.isinf(lo) else lo
-    hi = x0 + 2 * width if math.isinf(hi) else hi
-    pad = 1e-3 * (hi - lo)
-    return rng.uniform(lo + pad, hi - pad, size=n) if hi > lo else np.full(n, lo)
-
-
 def _points(sym, seed):
     rng = np.random.default_rng(seed)
-    xs = np.stack([_interval(lo, hi, x0, rng, N_POINTS) for lo, hi, x0 in zip(sym.x_lower, sym.x_upper, sym.x0)], 1)
-    us = np.stack([_interval(lo, hi, 0.0, rng, N_POINTS) for lo, hi in zip(sym.u_lower, sym.u_upper)], 1)
+    xs = np.stack([sample_interval(lo, hi, x0, rng, N_POINTS)
+                   for lo, hi, x0 in zip(sym.x_lower, sym.x_upper, sym.x0)], 1)
+    us = np.stack([sample_interval(lo, hi, 0.0, rng, N_POINTS) for lo, hi in zip(sym.u_lower, sym.u_upper)], 1)
     ts = rng.uniform(0, sym.horizon, size=N_POINTS)
     lams = rng.normal(size=(N_POINTS, len(sym.states)))
     # Parameters near their nominal values, so the generated code is checked off the defaults too.
