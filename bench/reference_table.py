@@ -29,7 +29,6 @@ def main() -> None:
     print(f"device: {jax.devices()[0].platform}; imports {time.perf_counter() - T_START:.2f} s")
     print(f"{'system':18s} {'cost':>12s} {'target':>10s} {'meets':>5s} {'cold s':>7s} {'compile s':>9s} "
           f"{'solve s':>7s} {'warm s':>7s}")
-    t_table = time.perf_counter()
     rows = []
     for name in args.systems:
         t0 = time.perf_counter()
@@ -45,7 +44,6 @@ def main() -> None:
         print(f"{name:18s} {sol.cost:12.6g} {system.reference.get('target', float('nan')):10.6g} "
               f"{'yes' if ok else 'NO':>5s} {cold:7.2f} {sol.compile_seconds:9.2f} {sol.solve_seconds:7.3f} "
               f"{warm:7.3f}", flush=True)
-    table = time.perf_counter() - t_table
     cold_total = sum(r[2] for r in rows)
     warm = sorted(r[3] for r in rows)
     print()
@@ -53,7 +51,6 @@ def main() -> None:
     print(f"table wall time (cold, JIT included, {len(rows)} systems): {cold_total:.1f} s "
           f"(process total incl. imports and warm re-solves: {time.perf_counter() - T_START:.1f} s; goal: < 60 s)")
     print(f"warm solve: median {warm[len(warm) // 2]:.3f} s, max {warm[-1]:.3f} s, sum {sum(warm):.2f} s")
-    del table
 
 
 if __name__ == "__main__":

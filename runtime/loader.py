@@ -6,6 +6,7 @@ and the compiler's own source, so editing either recompiles and nothing stale is
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
 import os
@@ -26,6 +27,7 @@ def cache_dir() -> Path:
     return Path(base) / "systems"
 
 
+@functools.cache  # read the compiler's sources once per process, not on every load by path
 def _compiler_fingerprint() -> str:
     import myriad.compiler as compiler
 
