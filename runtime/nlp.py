@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable
 
+import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["NLP", "NLPResult"]
@@ -35,6 +36,10 @@ class NLP:
         jacobian_sparsity: optional (rows, cols) of the structurally non-zero entries of dc/dz.
         z_scale: optional positive (n_variables,) nominal magnitudes; solvers may work in z / z_scale.
         name: a label for reports.
+        objective_and_constraints: optional (z, data) -> (F, c) computing both in one pass. A shooting
+            transcription's F and c come from the same rollout; fusing them halves the integration work of every
+            evaluation and of every derivative program built on both (the Lagrangian's Hessian). Must agree with
+            ``objective`` and ``constraints``; :meth:`evaluate` falls back to calling them separately.
     """
 
     objective: Callable[[Any, Data], Any]
@@ -48,6 +53,14 @@ class NLP:
     jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None = None
     z_scale: np.ndarray | None = None
     name: str = "nlp"
+    objective_and_constraints: Callable[[Any, Data], tuple[Any, Any]] | None = None
+
+    def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:
+        """``(F(z), c(z))``, fused when the transcription provides it; ``c`` is an empty array without constraints."""
+        if self.objective_and_constraints is not None:
+            return self.objective_and_constraints(z, data)
+        c = self.constraints(z, data) if self.constraints is not None else jnp.zeros(0)
+        return self.objective(z, data), c
 
     @property
     def n_variables(self) -> int:

@@ -136,6 +136,8 @@ class ScaledProblem:
     w_upper: np.ndarray
     c_lower: np.ndarray
     c_upper: np.ndarray
+    # (w, data) -> (F, c): fused when the NLP provides objective_and_constraints (see NLP), else both calls.
+    evaluate: Callable[[Any, Any], tuple[Any, Any]]
 
     @classmethod
     def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
@@ -150,6 +152,13 @@ class ScaledProblem:
         if c is None and nlp.n_constraints:
             raise ValueError(f"{nlp.name}: constraints is None but c_lower has {nlp.n_constraints} entries")
         s = jnp.asarray(scale)
+        fused = nlp.objective_and_constraints
+        if fused is not None:
+            evaluate = lambda w, data: fused(w * s, data)  # noqa: E731
+        elif c is not None:
+            evaluate = lambda w, data: (f(w * s, data), c(w * s, data))  # noqa: E731
+        else:
+            evaluate = lambda w, data: (f(w * s, data), jnp.zeros(0, dtype=w.dtype))  # noqa: E731
         return cls(
             objective=lambda w, data: f(w * s, data),
             constraints=None if nlp.n_constraints == 0 else (lambda w, data: c(w * s, data)),
@@ -158,6 +167,7 @@ class ScaledProblem:
             w_upper=np.asarray(nlp.z_upper, dtype=np.float64) / scale,
             c_lower=np.asarray(nlp.c_lower, dtype=np.float64),
             c_upper=np.asarray(nlp.c_upper, dtype=np.float64),
+            evaluate=evaluate,
         )
 
     @property

@@ -189,31 +189,53 @@ def _finite(bounds: np.ndarray) -> np.ndarray:
 
 
 class _Derivatives:
-    """The compiled functions IPOPT calls, for one NLP (in scaled variables ``w``)."""
+    """The compiled functions IPOPT calls, for one NLP (in scaled variables ``w``).
+
+    Two programs: ``point`` (objective, gradient, constraints and Jacobian values at ``w``, packed into one vector)
+    and ``hvps`` (Hessian-vector products of the Lagrangian). IPOPT asks for the four first-order quantities in four
+    callbacks, nearly always at the same point (the trial point, then its derivatives once it is accepted); one
+    program per point means one dispatch and one rollout instead of four, and the derivatives of a rejected trial
+    point are the only waste.
+    """
 
     def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None):
         self.problem = problem
-        f, c = problem.objective, problem.constraints
         n, m = problem.n_variables, problem.n_constraints
-        self.objective = CompiledFunction(f)
-        self.gradient = CompiledFunction(jax.grad(f))
+        evaluate = problem.evaluate
 
-        if m:
-            self.constraints = CompiledFunction(c)
-            if jacobian_sparsity is not None:
-                rows, cols = _validated_sparsity(jacobian_sparsity, (m, n))
-                self.jacobian = CompiledFunction(compressed_jacobian_fn(c, rows, cols, (m, n)))
-            else:
-                # Dense: reverse mode needs m passes, forward mode n; take the cheaper.
-                rows, cols = (idx.ravel() for idx in np.indices((m, n)))
-                jac = jax.jacrev(c) if m < n else jax.jacfwd(c)
-                self.jacobian = CompiledFunction(lambda w, data: jac(w, data).reshape(-1))
-            self.jacobian_structure = (rows, cols)
+        if m and jacobian_sparsity is not None:
+            rows, cols = _validated_sparsity(jacobian_sparsity, (m, n))
+            jacobian_values = compressed_jacobian_fn(problem.constraints, rows, cols, (m, n))
+
+            def point(w, data):
+                (f, c), grad = jax.value_and_grad(lambda w_: evaluate(w_, data), has_aux=True)(w)
+                return jnp.concatenate([f[None], grad, c, jacobian_values(w, data)])
+        else:
+            # Dense (or no) Jacobian: the gradient and the m Jacobian rows are the m + 1 rows of the Jacobian of
+            # (F, c), one forward pass shared by m + 1 reverse passes (forward mode when that is cheaper).
+            rows, cols = (idx.ravel() for idx in np.indices((m, n)))
+
+            def point(w, data):
+                def stacked(w_):
+                    f, c = evaluate(w_, data)
+                    return jnp.concatenate([f[None], c])
+
+                if m + 1 <= n:
+                    values, pullback = jax.vjp(stacked, w)
+                    jac = jax.vmap(pullback)(jnp.eye(m + 1, dtype=w.dtype))[0]
+                else:
+                    values, jac = stacked(w), jax.jacfwd(stacked)(w)
+                return jnp.concatenate([values[:1], jac[0], values[1:], jac[1:].reshape(-1)])
+
+        self.point = CompiledFunction(point)
+        self.jacobian_structure = (rows, cols)
+        # Offsets of f, grad, c and the Jacobian values in the packed vector.
+        self.layout = np.cumsum([0, 1, n, m, rows.size])
 
         def lagrangian_gradient(w, sigma, lam, data):
             def lagrangian(w_):
-                value = sigma * f(w_, data)
-                return value + jnp.dot(lam, c(w_, data)) if m else value
+                f, c = evaluate(w_, data)
+                return sigma * f + jnp.dot(lam, c)
 
             return jax.grad(lagrangian)(w)
 
@@ -231,12 +253,8 @@ class _Derivatives:
 
     def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
-        m = self.problem.n_constraints
         jobs = [(self.hvps, self.hvp_args(w0, data))] if exact else []
-        jobs += [(self.gradient, (w0, data)), (self.objective, (w0, data))]
-        if m:
-            jobs += [(self.jacobian, (w0, data)), (self.constraints, (w0, data))]
-        seconds = compile_many(jobs)
+        seconds = compile_many(jobs + [(self.point, (w0, data))])
         if exact:
             if self.hessian_structure is None:
                 start = time.perf_counter()
@@ -273,24 +291,21 @@ def _validated_sparsity(
 
 
 class _Callbacks:
-    """The object cyipopt calls back into: NumPy in, NumPy out, ``data`` fixed for the solve."""
+    """The object cyipopt calls back into: NumPy in, NumPy out, ``data`` fixed for the solve.
+
+    The first-order callbacks share one evaluation of ``point`` per distinct ``w`` (compared by value: cyipopt
+    hands over a fresh array every call), cached for the last two points.
+    """
 
     def __init__(self, fns: _Derivatives, w0: np.ndarray, data: Any, exact: bool):
         # Bind the executables once: IPOPT makes several calls per iteration, and looking the signature up in
         # CompiledFunction.__call__ would flatten `data` every time.
         self._data = data
-        self._f = fns.objective.executable(w0, data)
-        self._g = fns.gradient.executable(w0, data)
+        self._point = fns.point.executable(w0, data)
+        self._layout = fns.layout
+        self._jac_structure = fns.jacobian_structure
+        self._recent: dict[bytes, np.ndarray] = {}
         self.iterations = 0
-        m = fns.problem.n_constraints
-        if m:
-            self._c = fns.constraints.executable(w0, data)
-            self._jac = fns.jacobian.executable(w0, data)
-            self._jac_structure = fns.jacobian_structure
-        else:
-            empty = np.zeros(0)
-            self._c = self._jac = lambda w, data: empty
-            self._jac_structure = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         if exact:
             self._hvps = fns.hvps.executable(*fns.hvp_args(w0, data))
             self._colouring = fns.hessian_colouring
@@ -299,17 +314,29 @@ class _Callbacks:
             self.hessian = self._hessian
             self.hessianstructure = lambda: self._hess_structure
 
+    def _at(self, w: np.ndarray, part: int) -> np.ndarray:
+        key = w.tobytes()
+        values = self._recent.get(key)
+        if values is None:
+            values = np.asarray(self._point(w, self._data))
+            # Two points: IPOPT sometimes evaluates a second trial point (backtracking, second-order correction)
+            # before it asks for the derivatives at the first.
+            if len(self._recent) >= 2:
+                del self._recent[next(iter(self._recent))]
+            self._recent[key] = values
+        return values[self._layout[part] : self._layout[part + 1]]
+
     def objective(self, w):
-        return float(self._f(w, self._data))
+        return float(self._at(w, 0)[0])
 
     def gradient(self, w):
-        return np.asarray(self._g(w, self._data))
+        return self._at(w, 1)
 
     def constraints(self, w):
-        return np.asarray(self._c(w, self._data))
+        return self._at(w, 2)
 
     def jacobian(self, w):
-        return np.asarray(self._jac(w, self._data))
+        return self._at(w, 3)
 
     def jacobianstructure(self):
         return self._jac_structure

@@ -103,6 +103,16 @@ class MultipleShooting(AbstractTranscription):
             defects = (ends - X) / sx
             return jnp.concatenate([defects.ravel(), X[-1, fixed] - final])
 
+        def objective_and_constraints(z, data):
+            params = data["params"]
+            f, L = fields(params)
+            X, _, starts, Uw = starts_and_windows(z, data)
+            shoot = lambda x, t, u: rollout_with_cost(integrator, f, L, x, t, h, u)  # noqa: E731
+            xs, costs = jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw)
+            defects = (xs[:, -1] - X) / sx
+            objective = jnp.sum(costs[:, -1]) + system.terminal_cost(X[-1], T, params)
+            return objective, jnp.concatenate([defects.ravel(), X[-1, fixed] - final])
+
         def unravel(z, data):
             f, _ = fields(data["params"])
             X, U, starts, Uw = starts_and_windows(z, data)
@@ -140,6 +150,7 @@ class MultipleShooting(AbstractTranscription):
             jacobian_sparsity=sparsity(blocks),
             z_scale=np.concatenate([np.tile(sx, M), np.tile(su, N + 1)]),
             name=f"{system.name}/multiple_shooting(M={M}, S={S}, {type(integrator).__name__})",
+            objective_and_constraints=objective_and_constraints,
         )
 
     def sample(self, system, states, controls):

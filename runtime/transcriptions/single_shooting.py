@@ -77,6 +77,14 @@ class SingleShooting(AbstractTranscription):
             xT = rollout(integrator, f, data["x0"], 0.0, h, controls_of(z))[-1]
             return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
 
+        def objective_and_constraints(z, data):
+            params = data["params"]
+            f, L = fields(params)
+            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z))
+            xT = xs[-1]
+            rows = jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
+            return cost[-1] + system.terminal_cost(xT, T, params), rows
+
         def unravel(z, data):
             f, _ = fields(data["params"])
             us = controls_of(z)
@@ -99,6 +107,7 @@ class SingleShooting(AbstractTranscription):
             jacobian_sparsity=None,
             z_scale=np.tile(control_scale(system), N + 1),
             name=f"{system.name}/single_shooting(N={N}, {type(integrator).__name__})",
+            objective_and_constraints=objective_and_constraints if n_rows else None,
         )
 
     def sample(self, system, states, controls):
