@@ -12,7 +12,15 @@ from .base import AbstractIntegrator, Dynamics
 __all__ = ["rollout", "rollout_with_cost"]
 
 
-def rollout(integrator: AbstractIntegrator, f: Dynamics, x0: Any, t0: Any, h: Any, controls: Any) -> Any:
+def rollout(
+    integrator: AbstractIntegrator,
+    f: Dynamics,
+    x0: Any,
+    t0: Any,
+    h: Any,
+    controls: Any,
+    checkpoint: bool = False,
+) -> Any:
     """Integrate x' = f(x, u, t) from x(t0) = x0 over the grid t_k = t0 + k h, k = 0..N.
 
     The control is piecewise linear between its node values: on [t_k, t_k + h] it runs from controls[k] to
@@ -25,6 +33,9 @@ def rollout(integrator: AbstractIntegrator, f: Dynamics, x0: Any, t0: Any, h: An
         t0: initial time (scalar).
         h: step size (scalar; negative integrates backwards in time).
         controls: control values at the N + 1 nodes, shape (N + 1, m).
+        checkpoint: differentiate with rematerialisation: reverse mode keeps only the state at each node and
+            recomputes the step's intermediates on the way back. Values are unchanged; derivatives are the same up
+            to rounding. See :class:`~myriad.runtime.transcriptions.SingleShooting` for when it pays.
 
     Returns:
         The states at the N + 1 nodes, shape (N + 1, n); row 0 is x0.
@@ -40,6 +51,9 @@ def rollout(integrator: AbstractIntegrator, f: Dynamics, x0: Any, t0: Any, h: An
         x_next = integrator.step(f, x, t0 + k * h, h, u0, u1)
         return x_next, x_next
 
+    if checkpoint:
+        # prevent_cse=False: inside a scan the loop already keeps XLA from merging the recomputation away.
+        body = jax.checkpoint(body, prevent_cse=False, policy=jax.checkpoint_policies.nothing_saveable)
     _, xs = jax.lax.scan(body, x0, (ks, controls[:-1], controls[1:]))
     return jnp.concatenate([x0[None], xs], axis=0)
 
@@ -52,6 +66,7 @@ def rollout_with_cost(
     t0: Any,
     h: Any,
     controls: Any,
+    checkpoint: bool = False,
 ) -> tuple[Any, Any]:
     """A rollout of the state augmented with the accumulated running cost.
 
@@ -63,7 +78,7 @@ def rollout_with_cost(
     Heun on the 100-step grid this is how the published setting measures cost.
 
     Args:
-        integrator, f, x0, t0, h, controls: as in :func:`rollout`.
+        integrator, f, x0, t0, h, controls, checkpoint: as in :func:`rollout`.
         running_cost: L(x, u, t) -> scalar.
 
     Returns:
@@ -78,5 +93,5 @@ def rollout_with_cost(
         return jnp.concatenate([f(x, u, t), jnp.reshape(running_cost(x, u, t), (1,))])
 
     y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
-    ys = rollout(integrator, f_aug, y0, t0, h, controls)
+    ys = rollout(integrator, f_aug, y0, t0, h, controls, checkpoint)
     return ys[:, :n], ys[:, n]

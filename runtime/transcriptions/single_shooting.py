@@ -37,11 +37,20 @@ class SingleShooting(AbstractTranscription):
         controls: N, the number of control intervals (N + 1 control nodes).
         integrator: the one-step method of the rollout (Heun, as published).
         enforce_final_state_bounds: add the final-node state-bound rows.
+        checkpoint: rematerialise the rollout's steps when differentiating (see ``rollout``). The derivative
+            programs of a small system are bound by the number of XLA kernels per step, not by arithmetic: saving
+            only the state at each node and recomputing the step on the way back removes most of them. Measured on
+            the 18 systems (N = 100, Heun; 2 busy CPU cores): the dense Lagrangian Hessian 10-35 % faster on 16
+            (e.g. Harvest 513 -> 332 us, Cart-Pole 1496 -> 1323 us), the first-order program up to 2x faster; but
+            Rocket Landing's Hessian (six states, trigonometric thrust terms, n = 202) 2.9 -> 5.2 ms, where the
+            recomputation outweighs the saved kernels. Values are identical either way; turn it off for such
+            systems.
     """
 
     controls: int = 100
     integrator: AbstractIntegrator = Heun()
     enforce_final_state_bounds: bool = True
+    checkpoint: bool = True
 
     def __post_init__(self):
         if self.controls < 1:
@@ -69,18 +78,18 @@ class SingleShooting(AbstractTranscription):
         def objective(z, data):
             params = data["params"]
             f, L = fields(params)
-            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z))
+            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z), self.checkpoint)
             return cost[-1] + system.terminal_cost(xs[-1], T, params)
 
         def constraints(z, data):
             f, _ = fields(data["params"])
-            xT = rollout(integrator, f, data["x0"], 0.0, h, controls_of(z))[-1]
+            xT = rollout(integrator, f, data["x0"], 0.0, h, controls_of(z), self.checkpoint)[-1]
             return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
 
         def objective_and_constraints(z, data):
             params = data["params"]
             f, L = fields(params)
-            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z))
+            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z), self.checkpoint)
             xT = xs[-1]
             rows = jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
             return cost[-1] + system.terminal_cost(xT, T, params), rows
