@@ -69,3 +69,21 @@ def test_evaluate_falls_back_to_separate_calls():
     f, c = nlp.evaluate(z, data)
     assert float(f) == float(nlp.objective(z, data))
     np.testing.assert_array_equal(c, nlp.constraints(z, data))
+
+
+@pytest.mark.parametrize("name", ["rocket_landing", "bacteria"])
+def test_checkpointed_rollout_has_the_same_values_and_derivatives(name):
+    system = load(name)
+    data = default_data(system)
+    plain, remat = (SingleShooting(controls=30, checkpoint=flag).transcribe(system) for flag in (False, True))
+    lam = np.random.default_rng(3).standard_normal(plain.n_constraints)
+
+    def lagrangian(nlp):
+        return lambda z: nlp.objective(z, data) + jnp.dot(lam, nlp.constraints(z, data))
+
+    z = jnp.asarray(_random_point(plain, data, np.random.default_rng(5)))
+    v = jnp.asarray(np.random.default_rng(6).standard_normal(z.shape))
+    out = [jax.jit(lambda z: (lagrangian(nlp)(z), jax.grad(lagrangian(nlp))(z),
+                              jax.jvp(jax.grad(lagrangian(nlp)), (z,), (v,))[1]))(z) for nlp in (plain, remat)]
+    for a, b in zip(*out):
+        np.testing.assert_allclose(b, a, rtol=1e-11, atol=1e-11 * float(jnp.max(jnp.abs(a))))
