@@ -60,8 +60,12 @@ class Ipopt(AbstractNLPSolver):
     * Variables: IPOPT works in ``w = z / nlp.z_scale`` (see :class:`ScaledProblem`) rather than through its
       user-scaling option, so that every solver sees the same problem; IPOPT's own gradient-based scaling of the
       objective and constraints stays on.
+    * First order: objective, gradient, constraints and Jacobian come from one compiled program per point, built on
+      ``nlp.objective_and_constraints`` where the transcription fuses them (shooting: one rollout for both), and
+      shared by IPOPT's four callbacks at that point.
     * Jacobian: the triplets of ``nlp.jacobian_sparsity`` (deduplicated), evaluated by coloured JVPs; all ``m * n``
-      entries when no sparsity is given.
+      entries when no sparsity is given (then the gradient and the Jacobian rows are one reverse pass each after
+      a single forward pass).
     * Hessian: the pattern is detected numerically once per NLP, as the union of the non-zeros of the dense Lagrangian
       Hessian at two random points near the first starting point with random multipliers (plus the diagonal);
       values then come from coloured Hessian-vector products, 16 per call of one compiled program that serves
