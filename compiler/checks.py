@@ -127,5 +127,26 @@ def check_problem(sym: SymbolicProblem) -> None:
                          "check the expression", src.loc)
         if e.has(sympy.I):
             raise _error(spec, f"`{field}` is complex-valued; check the expression", src.loc)
+        bad = _non_real_constant(e)
+        if bad is not None:
+            raise _error(spec, f"the constant `{bad}` has no finite real value (the generated code would compute NaN "
+                         "or inf); check the arguments of its functions", src.loc)
         if e.is_Relational or isinstance(e, (sympy.logic.boolalg.BooleanFunction, sympy.logic.boolalg.BooleanAtom)):
             raise _error(spec, f"`{field}` is a condition, not a value; use where(cond, a, b)", src.loc)
+
+
+def _non_real_constant(e: sympy.Expr) -> sympy.Expr | None:
+    """The first constant subexpression (no symbols) whose value is not a finite float64 real, else None.
+
+    sympy keeps e.g. ``acos(2)`` or ``(-8)**(1/3)`` unevaluated (they are complex), and may wrap them in a function
+    that is real again (``abs(acos(2))``), so the whole expression looks fine while the generated code computes
+    NaN at the inner call. Every constant function application and power is evaluated numerically instead; one
+    beyond the float64 range (``exp(1000)``) would be infinite in the generated code, so it counts too.
+    """
+    for sub in sympy.preorder_traversal(e):
+        if sub.free_symbols or not isinstance(sub, (sympy.Function, sympy.Pow)):
+            continue
+        value = sub.evalf(30)
+        if value.has(sympy.I, sympy.nan, sympy.zoo) or (value.is_Number and not math.isfinite(float(value))):
+            return sub
+    return None
