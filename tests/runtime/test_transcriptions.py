@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from myriad.runtime import transcriptions
+from myriad.runtime import load, transcriptions
 from myriad.runtime.integrators import Heun
 from myriad.runtime.simulate import simulate
 from myriad.runtime.system import OptimalControlUnavailable
@@ -295,13 +295,54 @@ def test_sweep_free_final_state():
     assert np.isnan(np.asarray(r.defect)).all()
 
 
-def test_sweep_shoots_on_fixed_final_states():
+@pytest.mark.parametrize("newton", [True, False], ids=["newton", "broyden"])
+def test_sweep_shoots_on_fixed_final_states(newton):
     system = DoubleIntegrator()
-    r = ForwardBackwardSweep(intervals=200).solve(system)
-    assert r.converged and r.shooting_iterations >= 1, r.message
+    r = ForwardBackwardSweep(intervals=200, newton=newton).solve(system)
+    assert r.converged, r.message
+    if newton:
+        # Linear dynamics, quadratic cost, no bounds: Pontryagin's conditions are affine in (u, lambda(T)), so one
+        # Newton step (with an exact Jacobian) solves them.
+        assert (r.newton_iterations, r.shooting_iterations) == (1, 0)
+    else:
+        assert r.shooting_iterations >= 1 and r.newton_iterations == 0
     assert abs(r.cost - system.J_STAR) < 1e-6
     assert np.max(np.abs(np.asarray(r.defect))) < 1e-8
     np.testing.assert_allclose(np.asarray(r.controls), system.u_exact(np.asarray(r.times)), atol=1e-6)
+
+
+@pytest.mark.parametrize("newton", [True, False], ids=["newton", "sweep_only"])
+def test_sweep_step_control_on_a_stiff_problem(newton):
+    # ScalarLQ (x' = b u, L = q x^2 + u^2, T = 1) has G' = -q b^2 K*K, K the integral from 0, whose eigenvalues are
+    # -q b^2 (T / ((k + 1/2) pi))^2: with q = 110 the sweep is stable only for omega < 2 / (1 + 4 q / pi^2) = 0.044,
+    # so Lenhart's 1/2 diverges. Halving at every sign flip of the correction stops once no mode oscillates
+    # (omega < 1 / (1 + |mu|)), hence within a factor 4 below the limit.
+    q = 110.0
+    limit = 2.0 / (1.0 + q * (2.0 / math.pi) ** 2)
+    r = ForwardBackwardSweep(intervals=100, newton=newton).solve(ScalarLQ(), params={"q": q})
+    assert r.converged, r.message
+    assert limit / 4 <= r.relaxation < limit, r.relaxation
+    # J* = P(0) x0^2 with P = sqrt(q)/b tanh(b sqrt(q) (T - t)), the Riccati solution.
+    j_star = math.sqrt(q) * math.tanh(math.sqrt(q))
+    assert abs(r.cost - j_star) < 1e-5 * j_star
+    if newton:
+        assert r.newton_iterations == 1  # linear problem: exact after one step, long before the sweep's ~1e3 sweeps
+
+
+def test_sweep_converges_on_van_der_pol():
+    # Unstable near the origin (growth rate a/2 = 1/2) over T = 10: the sweep's linearisation has an eigenvalue
+    # near -1.8e4 at the solution, so the step control must bring omega to ~1e-4 before the sweep can approach it,
+    # and Newton finishes. J* = 2.87331 from IPOPT on multiple shooting (50 x 4 RK4 steps), which the sweep with
+    # N = 1000 matches to 2e-7.
+    system = load("van_der_pol")
+    r = ForwardBackwardSweep(intervals=500).solve(system)
+    assert r.converged and r.newton_iterations >= 1, r.message
+    assert r.relaxation < 2.5e-4
+    assert abs(r.cost - 2.87331) < 1e-4 * 2.87331
+    assert np.max(np.abs(np.asarray(r.defect))) < 1e-9
+    # The returned controls minimise H along the returned trajectory: u = clip(-lambda_x0 / 2, -0.75, 1).
+    lam = np.asarray(r.costates)
+    np.testing.assert_allclose(np.asarray(r.controls)[:, 0], np.clip(-lam[:, 0] / 2, -0.75, 1.0), atol=1e-9)
 
 
 def test_sweep_refuses_without_optimal_control():
@@ -311,7 +352,9 @@ def test_sweep_refuses_without_optimal_control():
 
 def test_sweep_reports_non_convergence():
     r = ForwardBackwardSweep(intervals=50, max_iter=2).solve(ScalarLQ())
-    assert not r.converged and "did not converge in 2 iterations" in r.message
+    assert not r.converged and "did not converge in 2 sweeps" in r.message
+    r = ForwardBackwardSweep(intervals=50, max_newton_iter=0).solve(ScalarLQ())
+    assert not r.converged and "Newton's method on Pontryagin's conditions did not converge" in r.message
 
 
 def test_sweep_reports_violated_state_bounds():
