@@ -79,10 +79,7 @@ def _read(path: Path, display: str) -> str:
         raise SpecError(f"cannot read file: {exc.strerror}", Location(display, 1, 1)) from None
     if len(raw) > parse.MAX_SPEC_BYTES:
         raise SpecError(f"spec is larger than {parse.MAX_SPEC_BYTES} bytes", Location(display, 1, 1))
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"file is not UTF-8 text (byte {exc.start})", Location(display, 1, 1)) from None
+    return parse.decode_spec(raw, display)
 
 
 def compile_file(path: str | os.PathLike, display: str | None = None) -> Compiled:

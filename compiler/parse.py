@@ -328,8 +328,16 @@ def parse_file(path: str, display: str | None = None) -> ProblemSpec:
             raw = fh.read(MAX_SPEC_BYTES + 1)
     except OSError as exc:
         raise SpecError(f"cannot read file: {exc.strerror}", Location(display, 1, 1)) from None
+    return parse_spec(decode_spec(raw, display), display)
+
+
+def decode_spec(raw: bytes, display: str) -> str:
+    """The spec's bytes as text; a non-UTF-8 byte is reported at its own line and column."""
     try:
-        text = raw.decode("utf-8")
+        return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise SpecError(f"file is not UTF-8 text (byte {exc.start})", Location(display, 1, 1)) from None
-    return parse_spec(text, display)
+        line_start = raw.rfind(b"\n", 0, exc.start) + 1
+        line = raw.count(b"\n", 0, exc.start) + 1
+        column = len(raw[line_start : exc.start].decode("utf-8", "replace")) + 1
+        raise SpecError(f"file is not UTF-8 text: byte 0x{raw[exc.start]:02x} at offset {exc.start}; save the file "
+                        "as UTF-8", Location(display, line, column)) from None

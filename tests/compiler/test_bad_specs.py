@@ -110,9 +110,21 @@ def test_non_utf8_file(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     rc, err = _check_output(capsys, ["check", str(path)])
     assert rc == 1
-    assert err.startswith(f"binary.yaml:1:1: error: <document>: file is not UTF-8 text (byte {raw.index(0xff)})"), err
+    # Line 3, column 8: the first bad byte, right after "title: ".
+    assert err.startswith(f"binary.yaml:3:8: error: <document>: file is not UTF-8 text: byte 0xff at offset "
+                          f"{raw.index(0xff)}; save the file as UTF-8"), err
     rc, err = _check_output(capsys, ["build", str(path), "-o", str(tmp_path / "out")])
     assert rc == 1 and not (tmp_path / "out").exists()
+    assert err.startswith("binary.yaml:3:8: error:"), err
+
+
+def test_non_utf8_byte_after_multibyte_text_is_located_by_character(tmp_path, monkeypatch, capsys):
+    path = tmp_path / "accents.yaml"
+    path.write_bytes("schema: 1\ntitle: café \u00e9\u00e9".encode() + b"\xc3(\n")  # \xc3( is a broken sequence
+    monkeypatch.chdir(tmp_path)
+    rc, err = _check_output(capsys, ["check", str(path)])
+    assert rc == 1
+    assert err.startswith("accents.yaml:2:15: error:"), err
 
 
 def test_alias_bomb_is_rejected_fast():
