@@ -106,12 +106,13 @@ class ForwardBackwardSweep:
 
     Why the sweep alone can fail. Near a fixed point the error obeys e^{j+1} = (I + omega (G' - I)) e^j. Where H is
     quadratic in u with curvature R and no control bound is active, u* - u = -R^-1 dJ/du (the sweep is a gradient
-    descent on the cost as a function of u), so G' = -R^-1 M, M >= 0 the part of the cost's Hessian that comes from
-    the states: its eigenvalues mu are real and <= 0, and the sweep converges iff omega < 2 / (1 + |mu|_max), at the
-    rate 1 - omega per sweep in the directions where mu ~ 0. Unstable dynamics amplify a control perturbation in x
-    forward and again in lambda backward, so |mu|_max grows like e^{2cT} with the growth rate c: on Van der Pol
-    (c = 1/2 at the origin, T = 10) it is 1.8e4 at the solution, Lenhart's omega = 1/2 diverges, and a stable
-    omega ~ 1e-4 needs ~2e4 sweeps per decade of the change.
+    descent on the cost as a function of u), so G' = -R^-1 M, M the part of the cost's Hessian that comes through the
+    states (M >= 0 for linear dynamics): where its eigenvalues mu are real and <= 0, the sweep converges iff
+    omega < 2 / (1 + |mu|_max), at the rate 1 - omega per sweep in the directions where mu ~ 0. Unstable dynamics
+    amplify a control perturbation in x forward and again in lambda backward, so |mu|_max grows roughly like e^{2cT},
+    c the growth rate: on Van der Pol (c = a/2 at the origin, T = 10) it is 3.5e2, 1.8e4 and 3.2e5 at the solution
+    for a = 0.5, 1 and 1.5, so Lenhart's omega = 1/2 diverges, and at a = 1 a stable omega ~ 1e-4 needs ~2e4 sweeps
+    per decade of the change.
 
     Step control. An omega beyond the limit multiplies the dominant error mode by 1 - omega (1 + |mu|) < -1 per
     sweep, so successive corrections u* - u point apart; omega is halved whenever their inner product is negative,
