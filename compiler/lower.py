@@ -265,6 +265,7 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         ("param_descriptions", _lit(tuple(p.description for p in spec.parameters))),
         ("learnable", _lit(learnable)),
         ("learnable_guesses", _lit(guesses)),
+        ("structural_params", _lit(sym.structural_params)),
         ("x0", _lit(sym.x0)),
         ("x_lower", _lit(sym.x_lower)),
         ("x_upper", _lit(sym.x_upper)),

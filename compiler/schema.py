@@ -117,6 +117,8 @@ class SymbolicProblem:
     u_upper: tuple[float, ...]
     x_final: tuple[float | None, ...]
     horizon: float
+    # Parameters that initial values, bounds, final values or the horizon were evaluated with, in spec order.
+    structural_params: tuple[str, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

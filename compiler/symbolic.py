@@ -406,12 +406,20 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
     u_upper = tuple(const(c.upper, math.inf, False) for c in spec.controls)
     x_final = tuple(None if s.final is None else _constant(cparser, s.final, finite=True) for s in spec.states)
     horizon = _constant(cparser, spec.horizon, finite=True)
+    # The parameters these constants were evaluated with (directly or through a definition): the generated code
+    # holds the numbers, so a new value of such a parameter at run time could not move them.
+    used = set(cparser.used)
+    for name in cparser.used:
+        if name in definitions:
+            used |= {str(sym) for sym in definitions[name].free_symbols}
+    structural = tuple(p.name for p in spec.parameters if p.name in used)
     guesses = tuple(None if p.guess is None else _constant(cparser, p.guess, finite=True) for p in spec.parameters)
 
     return SymbolicProblem(
         spec=spec, states=states, controls=controls, params=params, time=TIME, dynamics=dynamics,
         running=running, terminal=terminal, param_values=tuple(param_values), guesses=guesses, x0=x0,
         x_lower=x_lower, x_upper=x_upper, u_lower=u_lower, u_upper=u_upper, x_final=x_final, horizon=horizon,
+        structural_params=structural,
     )
 
 
@@ -421,8 +429,12 @@ class _ConstantParser(ExpressionParser):
     def __init__(self, namespace, lines):
         super().__init__(namespace, lines, "a constant field may use numbers, pi, inf, parameters and "
                          "parameter-only definitions", allow_inf=True)
+        self.used = set()
+
+    used: set[str]
 
     def _name(self, node):
+        self.used.add(node.id)
         if node.id == "t":
             raise self.error("the time `t` is not a constant; it can be used in dynamics and costs only",
                              self._at(node))

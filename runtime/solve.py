@@ -29,6 +29,7 @@ from .solvers.base import AbstractNLPSolver
 from .system import System
 from .transcriptions import INDIRECT, TRANSCRIPTIONS, AbstractTranscription, ForwardBackwardSweep, SingleShooting
 from .transcriptions import default_data
+from .transcriptions._common import check_structural_params
 
 __all__ = ["Solution", "solve", "solve_batch", "transcribe", "label"]
 
@@ -222,6 +223,7 @@ def solve_batch(
     if len(sizes) != 1:
         raise ValueError(f"solve_batch needs one batch size across params and x0, got {sorted(sizes) or 'none'}")
     (batch,) = sizes
+    check_structural_params(system, params or {})
     base = default_data(system)
     p = {k: jnp.broadcast_to(v, (batch,)) for k, v in base["params"].items()}
     p.update({k: jnp.asarray(v, dtype=jnp.float64) for k, v in (params or {}).items()})

@@ -54,6 +54,8 @@ class System:
     param_descriptions: ClassVar[tuple[str, ...]]
     learnable: ClassVar[tuple[str, ...]]
     learnable_guesses: ClassVar[tuple[float, ...]]
+    # Parameters that the constants below (x0, bounds, x_final, horizon) were evaluated with at compile time.
+    structural_params: ClassVar[tuple[str, ...]] = ()
     x0: ClassVar[tuple[float, ...]]
     x_lower: ClassVar[tuple[float, ...]]
     x_upper: ClassVar[tuple[float, ...]]

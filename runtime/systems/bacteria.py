@@ -31,6 +31,7 @@ class Bacteria(_System):
     param_descriptions = ('growth rate', 'nutrient strength', 'by-product strength', 'payoff weight on the final concentration')
     learnable = ('r', 'A', 'B')
     learnable_guesses = (0.8, 1.2, 2.0)
+    structural_params = ()
     x0 = (1.0,)
     x_lower = (0.0,)
     x_upper = (10.0,)

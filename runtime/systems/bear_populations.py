@@ -31,6 +31,7 @@ class BearPopulations(_System):
     param_descriptions = ('growth rate', 'carrying capacity', 'share of park emigrants that move to the forest', 'share of forest emigrants that move to the park', 'cost weight on park harvesting', 'cost weight on forest harvesting')
     learnable = ('r', 'K', 'm_p', 'm_f')
     learnable_guesses = (0.2, 0.6, 0.6, 0.3)
+    structural_params = ()
     x0 = (0.4, 0.2, 0.0)
     x_lower = (0.0, 0.0, 0.0)
     x_upper = (2.0, 2.0, 2.0)

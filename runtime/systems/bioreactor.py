@@ -31,6 +31,7 @@ class Bioreactor(_System):
     param_descriptions = ('payoff weight on bacteria concentration', 'growth rate', 'death rate', 'maximum nutrient rate')
     learnable = ('G', 'D')
     learnable_guesses = (1.2, 0.8)
+    structural_params = ('M',)
     x0 = (0.5,)
     x_lower = (0.0,)
     x_upper = (1.0,)

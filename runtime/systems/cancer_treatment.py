@@ -31,6 +31,7 @@ class CancerTreatment(_System):
     param_descriptions = ('tumour growth rate', 'weight on tumour density', 'drug effect')
     learnable = ('r', 'delta')
     learnable_guesses = (0.1, 0.8)
+    structural_params = ()
     x0 = (0.975,)
     x_lower = (0.001,)
     x_upper = (1.0,)

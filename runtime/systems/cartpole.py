@@ -31,6 +31,7 @@ class Cartpole(_System):
     param_descriptions = ('gravitational acceleration', 'cart mass', 'pole mass', 'pole length')
     learnable = ('g', 'm1', 'm2', 'l')
     learnable_guesses = (10.0, 1.5, 0.2, 0.6)
+    structural_params = ()
     x0 = (0.0, 0.0, 0.0, 0.0)
     x_lower = (-2.0, -6.283185307179586, -5.0, -10.0)
     x_upper = (2.0, 6.283185307179586, 5.0, 10.0)

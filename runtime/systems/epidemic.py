@@ -33,6 +33,7 @@ class Epidemic(_System):
     param_descriptions = ('birth rate', 'natural death rate', 'incidence rate', 'rate at which exposed become infectious (e in the source)', 'recovery rate', 'disease-induced death rate', 'weight on infectious population')
     learnable = ()
     learnable_guesses = ()
+    structural_params = ()
     x0 = (1000.0, 100.0, 50.0, 1165.0)
     x_lower = (0.0, 0.0, 0.0, 0.0)
     x_upper = (math.inf, math.inf, math.inf, math.inf)

@@ -31,6 +31,7 @@ class Glucose(_System):
     param_descriptions = ('rate at which glucose decays unaided', 'rate at which hormones lower glucose', 'hormone decay rate', 'weight on the glucose deviation', 'target glucose level')
     learnable = ('a', 'b', 'c')
     learnable_guesses = (0.5, 0.4, 0.6)
+    structural_params = ()
     x0 = (0.75, 0.0)
     x_lower = (0.0, 0.0)
     x_upper = (1.0, 1.0)

@@ -33,6 +33,7 @@ class Harvest(_System):
     param_descriptions = ('payoff weight on the harvest', 'maximum mass of an individual', 'death rate', 'maximum harvest rate')
     learnable = ()
     learnable_guesses = ()
+    structural_params = ('M',)
     x0 = (0.4,)
     x_lower = (-math.inf,)
     x_upper = (math.inf,)

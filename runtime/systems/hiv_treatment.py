@@ -31,6 +31,7 @@ class HivTreatment(_System):
     param_descriptions = ('source rate of uninfected T cells', 'death rate of uninfected T cells', 'death rate of infected T cells', 'death rate of free virus', 'proliferation rate of T cells', 'maximum T-cell population', 'infection rate', 'virions produced per infected cell', 'payoff weight on uninfected T cells')
     learnable = ('s', 'm1', 'm2', 'm3', 'r', 'T_max', 'k', 'N')
     learnable_guesses = (11.0, 0.01, 0.9, 3.4, 0.02, 1400.0, 4.4e-05, 250.0)
+    structural_params = ()
     x0 = (800.0, 0.04, 1.5)
     x_lower = (0.0, 0.0, 0.0)
     x_upper = (1600.0, 100.0, 100.0)

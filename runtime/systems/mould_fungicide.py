@@ -31,6 +31,7 @@ class MouldFungicide(_System):
     param_descriptions = ('growth rate', 'carrying capacity', 'weight on mould concentration')
     learnable = ('r', 'M')
     learnable_guesses = (0.1, 8.0)
+    structural_params = ()
     x0 = (1.0,)
     x_lower = (0.0,)
     x_upper = (5.0,)

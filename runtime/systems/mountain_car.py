@@ -31,6 +31,7 @@ class MountainCar(_System):
     param_descriptions = ('engine power', 'strength of gravity along the hill')
     learnable = ('power', 'gravity')
     learnable_guesses = (0.001, 0.005)
+    structural_params = ()
     x0 = (-0.1, 0.0)
     x_lower = (-1.2, -0.07)
     x_upper = (0.6, 0.07)

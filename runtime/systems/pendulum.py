@@ -31,6 +31,7 @@ class Pendulum(_System):
     param_descriptions = ('gravitational acceleration', 'mass', 'length')
     learnable = ('g', 'm', 'l')
     learnable_guesses = (15.0, 3.0, 0.5)
+    structural_params = ()
     x0 = (0.0, 0.0)
     x_lower = (-3.141592653589793, -8.0)
     x_upper = (3.141592653589793, 8.0)

@@ -31,6 +31,7 @@ class PredatorPrey(_System):
     param_descriptions = ('pesticide kill rate on the pest', 'pesticide kill rate on the predator', 'weight on the pesticide rate', 'total amount of pesticide', 'maximum pesticide rate')
     learnable = ('d1', 'd2')
     learnable_guesses = (0.15, 0.07)
+    structural_params = ('B', 'M')
     x0 = (10.0, 1.0, 0.0)
     x_lower = (0.0, 0.0, 0.0)
     x_upper = (11.0, 11.0, 5.0)

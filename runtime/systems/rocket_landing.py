@@ -31,6 +31,7 @@ class RocketLanding(_System):
     param_descriptions = ('gravitational acceleration', 'mass', 'length', 'maximum thrust')
     learnable = ()
     learnable_guesses = ()
+    structural_params = ()
     x0 = (0.0, 0.0, 1000.0, -80.0, -1.5707963267948966, 0.0)
     x_lower = (-250.0, -250.0, 0.0, -250.0, -6.283185307179586, -250.0)
     x_upper = (150.0, 150.0, 1000.0, 150.0, 6.283185307179586, 150.0)

@@ -33,6 +33,7 @@ class SimpleCase(_System):
     param_descriptions = ('payoff weight on the state', 'cost weight on the control', 'control effectiveness')
     learnable = ()
     learnable_guesses = ()
+    structural_params = ()
     x0 = (1.0,)
     x_lower = (-math.inf,)
     x_upper = (math.inf,)

@@ -31,6 +31,7 @@ class TimberHarvest(_System):
     param_descriptions = ('return on reinvestment', 'discount rate')
     learnable = ('k',)
     learnable_guesses = (0.7,)
+    structural_params = ()
     x0 = (100.0,)
     x_lower = (0.0,)
     x_upper = (20000.0,)

@@ -31,6 +31,7 @@ class Tumour(_System):
     param_descriptions = ('tumour growth parameter', 'stimulation of vascular capacity by the tumour', 'inhibition of vascular capacity by the tumour', 'anti-angiogenic kill rate of the inhibitor', 'natural loss of vascular capacity', 'maximum dose rate', 'total inhibitor budget')
     learnable = ('xi', 'b', 'd', 'G', 'mu')
     learnable_guesses = (0.06, 4.5, 0.01, 0.2, 0.01)
+    structural_params = ('b', 'd', 'mu', 'a', 'A')
     x0 = (8628.821219079116, 4314.410609539558, 0.0)
     x_lower = (0.0, 0.0, 0.0)
     x_upper = (17257.642438158233, 17257.642438158233, 15.0)

@@ -31,6 +31,7 @@ class VanDerPol(_System):
     param_descriptions = ('damping coefficient',)
     learnable = ('a',)
     learnable_guesses = (0.5,)
+    structural_params = ()
     x0 = (0.0, 1.0)
     x_lower = (-4.0, -4.0)
     x_upper = (4.0, 4.0)

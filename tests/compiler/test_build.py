@@ -170,3 +170,13 @@ def test_all_specs_compile_quickly_enough_to_report():
     # Not a timing assertion (those live in bench/); this just exercises the full pipeline on every spec once.
     for path in ALL_SPECS:
         assert compile_file(path).text
+
+
+def test_structural_params_are_those_the_constant_fields_use():
+    from myriad.runtime import load
+
+    # Tumour: x0 and bounds use pbar = ((b - mu)/d)**(3/2) (through a definition), the budget bound uses A and the
+    # control bound a; xi and G appear only in the dynamics.
+    assert load("tumour").structural_params == ("b", "d", "mu", "a", "A")
+    assert load("predator_prey").structural_params == ("B", "M")
+    assert load("rocket_landing").structural_params == ()

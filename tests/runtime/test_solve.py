@@ -12,6 +12,7 @@ import pytest
 from myriad.runtime import load
 from myriad.runtime.integrators import RK4
 from myriad.runtime.solve import solve, solve_batch
+from myriad.runtime.transcriptions import default_data
 from myriad.runtime.solvers import SLSQP, Extragradient, Ipopt
 from myriad.runtime.transcriptions import (ForwardBackwardSweep, HermiteSimpson, MultipleShooting, SingleShooting,
                                            Trapezoidal)
@@ -160,3 +161,16 @@ def test_cli_usage_errors():
         main(["solve", "simple_case", "--transcription", "nope"])
     assert exc.value.code == 2
     assert main(["solve", "no_such_system"]) == 2
+
+
+def test_a_parameter_baked_into_final_values_and_bounds_cannot_be_overridden():
+    # Predator-Prey's required z(T) = B and bound z <= B are compiled as 5: a solve with B = 4 would still target 5.
+    with pytest.raises(ValueError, match=r"predator_prey: parameter `B` = 4.0 differs from the spec's 5.*final values"):
+        solve("predator_prey", params={"B": 4.0})
+    with pytest.raises(ValueError, match=r"parameter `B`"):
+        solve_batch("predator_prey", params={"B": np.array([5.0, 4.0])})
+    assert load("predator_prey").structural_params == ("B", "M")
+    assert load("van_der_pol").structural_params == ()
+    # The spec's own value is accepted (nothing would be lost).
+    data = default_data(load("predator_prey"), {"B": 5.0, "d1": 0.2})
+    assert float(data["params"]["d1"]) == 0.2
