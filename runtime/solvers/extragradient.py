@@ -40,6 +40,15 @@ _PENALTY_CHECK = 2000
 _SIGMOID_MARGIN = 1e-2
 # IPOPT's nlp_scaling_max_gradient: the objective is scaled so its gradient at the start is at most this.
 _MAX_START_GRADIENT = 100.0
+_SCALING_MODES = ("guess", "bounds")
+# scaling="guess": start magnitudes below this (in the NLP's scaled units) are raised to it, so that a start of 1e-12
+# does not freeze a variable; an exact zero carries no magnitude at all and keeps the nominal scale 1.
+_MIN_COLUMN_SCALE = 1e-4
+# scaling="guess": limits of the row factors (IPOPT's gradient-based rule only ever scales down, to 1e-8; rows here are
+# scaled up as well, which is what a defect row of a tiny state needs, so both directions are bounded).
+_ROW_SCALE_LIMITS = (1e-4, 1e4)
+# Columns of the start Jacobian computed per JVP batch when measuring the rows (memory: this many constraint vectors).
+_JACOBIAN_CHUNK = 32
 
 
 class ExtragradientSolution(NamedTuple):
@@ -100,6 +109,31 @@ class Extragradient(AbstractNLPSolver):
     all at most ``tol``. Only then is the solve a success. Everything runs in scaled variables ``w = z / z_scale``
     (see :class:`ScaledProblem`), so the stationarity test is on the scaled gradient.
 
+    Scaling:
+        ``"guess"`` (default) adds two diagonal scalings measured at the start ``w0``, a column scale ``d`` for the
+        step rules and a row scale ``r`` for the Lagrangian:
+
+        .. math::
+            d_j = \\max(|w_{0,j}|, 10^{-4})\\ (1 \\text{ where } w_{0,j} = 0), \\qquad
+            r_i = \\operatorname{clip}\\Big(1 \\big/ \\max_j |\\partial c_i / \\partial w_j(w_0)|\\, d_j,\\
+                10^{-4}, 10^{4}\\Big)
+
+        The primal rule acts on ``v = w / d`` (it is given ``d * grad_w L`` and its step is multiplied by ``d``), and
+        ``L_rho`` is built on the rows ``r * c`` (so ``lambda, mu`` and ``rho`` are in those units). AMSGrad's steps
+        are about ``lr`` in ``v`` whatever the gradient's size, so ``d`` makes each variable's steps proportional to
+        its magnitude instead of to the nominal ``z_scale``; ``r`` equilibrates the Jacobian in ``v`` to a largest
+        entry of 1 per row, which turns the huge multipliers of rows whose variables are small into ``O(1)`` ones
+        that the dual ascent can reach. Both are changes of variables: the KKT test above (in ``w``, on the rows as
+        given), the violation and the reported multipliers are the same quantities with or without them. An exact
+        zero in ``w0`` carries no magnitude and keeps ``d = 1``; rows are measured by one JVP per column, once.
+        Measured on HIV Treatment (``Trapezoidal(50)``: ``z_scale`` from the bounds ``[1600, 100, 100]`` against
+        trajectories of about ``[800, 0.04, 1.5]``, multipliers up to 9e4): stalls at violation 9e-4 with
+        ``"bounds"``, converges in 34k iterations with ``"guess"``; each scaling alone fails. The scale is only as
+        good as the start's magnitudes: Epidemic's default start holds E and I at their initial 100 and 50 while the
+        solution falls to 1e-4, and takes 277k iterations (411k with ``"bounds"``); from a start simulated with the
+        same controls, 11k.
+        ``"bounds"``: ``d = 1`` and ``r = 1``, only ``z_scale`` (the behaviour before ``"guess"``).
+
     Bounds:
         ``"projection"``: clip ``w`` to the box after every half-step.
         ``"sigmoid"``: for variables with both bounds finite, optimise ``p`` with
@@ -116,9 +150,14 @@ class Extragradient(AbstractNLPSolver):
         of ``rho / penalty`` (the dual "gradient" is scaled by it), so they grow with the penalty as in the method
         of multipliers, ``lambda += rho h``. Without this, transcribed OCPs (dozens of defect equalities against an
         objective of order 1 to 1e3) stalled at violations of 1e-2 with ``rho = 1``, while ``rho = 100`` from the
-        start stalled HS71; growing it only on stalls solves both. Measured on 8 systems x 4 transcriptions: 23 of
-        32 converge within 1e5 iterations (to IPOPT's objective or another local optimum); with a fixed
-        ``rho = 1``, 3 of the first 17 had within 5e4.
+        start stalled HS71; growing it only on stalls solves both. Measured on 8 systems x 4 transcriptions (with
+        ``scaling="bounds"``): 23 of 32 converge within 1e5 iterations (to IPOPT's objective or another local
+        optimum); with a fixed ``rho = 1``, 3 of the first 17 had within 5e4. The slow solves we measured end the
+        same way: ``rho`` at its cap of 1e4 and the stationarity decaying by about half per 2e4 iterations
+        (AMSGrad's normaliser keeps the gradients of the penalty's jumps). Capping at 1e3 or 1e5, growing by 3 or
+        100, checking every 1000 to 10000 iterations, growing only while the violation exceeds the stationarity,
+        and letting AMSGrad's maximum decay (0.9999 to 0.99999 per step) were each no better on Epidemic and
+        worse on others of the smooth Lenhart systems.
 
     Step rules:
         The default primal rule is AMSGrad, Adam whose normaliser ``sqrt(v_max)`` never decreases. Plain Adam with a
@@ -148,8 +187,10 @@ class Extragradient(AbstractNLPSolver):
         max_iter: the iteration limit.
         tol: the KKT tolerance (absolute, infinity norms).
         bounds: ``"projection"`` or ``"sigmoid"`` (see above).
-        scale_objective: scale F so that its gradient at the start is at most 100 in the infinity norm (IPOPT's
-            gradient-based rule); the KKT test then holds in the scaled units, and multipliers are reported unscaled.
+        scale_objective: scale F so that its gradient at the start (with respect to ``v``) is at most 100 in the
+            infinity norm (IPOPT's gradient-based rule); the KKT test then holds in the scaled units, and multipliers
+            are reported unscaled.
+        scaling: ``"guess"`` or ``"bounds"`` (see "Scaling").
 
     References:
         Korpelevich (1976), The extragradient method for finding saddle points and other problems.
@@ -168,10 +209,13 @@ class Extragradient(AbstractNLPSolver):
     tol: float = 1e-6
     bounds: Literal["projection", "sigmoid"] = "projection"
     scale_objective: bool = True
+    scaling: Literal["guess", "bounds"] = "guess"
 
     def __post_init__(self):
         if self.bounds not in _BOUNDS_MODES:
             raise ValueError(f"Extragradient(bounds={self.bounds!r}): expected one of {_BOUNDS_MODES}")
+        if self.scaling not in _SCALING_MODES:
+            raise ValueError(f"Extragradient(scaling={self.scaling!r}): expected one of {_SCALING_MODES}")
         if not self.tol > 0 or self.max_iter < 1 or not self.penalty >= 0:
             raise ValueError("Extragradient: tol must be positive, max_iter at least 1 and penalty non-negative")
         if not self.penalty_growth >= 1 or not self.penalty_max >= self.penalty:
@@ -309,6 +353,33 @@ def _optax_promotion():
     return jax.numpy_dtype_promotion("standard")
 
 
+class _Scales(NamedTuple):
+    """Per-solve scale factors, computed from the start point inside the jitted solve (so they may depend on data)."""
+
+    sigma: jax.Array  # objective factor: the solver minimises sigma F
+    column: jax.Array  # d (n,): the step rules act on v = w / d
+    row: jax.Array  # r (m,): the Lagrangian and the dual steps use r * c
+
+
+def _row_max_abs(c_fn: Callable, w: jax.Array, d: jax.Array, data: Any, m: int) -> jax.Array:
+    """``max_j |dc_i/dw_j| d_j`` for every row ``i``, from one JVP per column in chunks of ``_JACOBIAN_CHUNK``.
+
+    A scan over chunks keeps the memory at ``_JACOBIAN_CHUNK`` constraint vectors instead of the dense Jacobian (which,
+    under ``vmap`` over a large batch, would be the largest array of the whole solve). It runs once per solve.
+    """
+    n = w.shape[0]
+    chunks = -(-n // _JACOBIAN_CHUNK)
+
+    def columns(carry, k):
+        idx = k * _JACOBIAN_CHUNK + jnp.arange(_JACOBIAN_CHUNK)
+        basis = (idx[:, None] == jnp.arange(n)[None, :]).astype(w.dtype) * d  # rows past n are zero
+        jd = jax.vmap(lambda v: jax.jvp(lambda w_: c_fn(w_, data), (w,), (v,))[1])(basis)
+        return jnp.maximum(carry, jnp.max(jnp.abs(jd), axis=0)), None
+
+    out, _ = jax.lax.scan(columns, jnp.zeros(m, dtype=w.dtype), jnp.arange(chunks))
+    return out
+
+
 def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[Any, Any], ExtragradientSolution]:
     """Build the pure ``(data, z0) -> ExtragradientSolution`` for one scaled problem. All indices are static."""
     f, c_fn = problem.objective, problem.constraints
@@ -321,6 +392,7 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
     growth, rho_max, every = float(solver.penalty_growth), float(solver.penalty_max), _PENALTY_CHECK
     tol, max_iter = float(solver.tol), int(solver.max_iter)
     scale_objective = bool(solver.scale_objective)
+    from_guess = solver.scaling == "guess"
     primal, dual = solver.step, solver.dual_step
     if not isinstance(primal, optax.GradientTransformation):
         primal = optax.amsgrad(float(primal))
@@ -353,23 +425,51 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
         lam, mu_u, mu_l = duals
         return lam, jnp.maximum(mu_u, 0.0), jnp.maximum(mu_l, 0.0)
 
-    def evaluate(p, duals, rho, data, sigma) -> _Point:
+    def make_scales(w0, data, dtype) -> _Scales:
+        ones_n, ones_m = jnp.ones(n, dtype), jnp.ones(m, dtype)
+        if from_guess:
+            a = jnp.abs(w0)
+            column = jnp.where(jnp.isfinite(a) & (a > 0), jnp.maximum(a, _MIN_COLUMN_SCALE), 1.0)
+            # The sigmoid's parameter p is not w: its scale is the logit's, leave it alone.
+            column = jnp.where(boxed, 1.0, column).astype(dtype)
+        else:
+            column = ones_n
+        if from_guess and m:
+            norms = _row_max_abs(c_fn, w0, column, data, m)
+            row = jnp.where(jnp.isfinite(norms) & (norms > 0), jnp.clip(1.0 / norms, *_ROW_SCALE_LIMITS), 1.0)
+            row = row.astype(dtype)
+        else:
+            row = ones_m
+        # Objective scaling as IPOPT's gradient-based rule: a start gradient above 100 (in the variables the steps
+        # act on) is scaled down to 100, so an objective like Glucose's (a 1e5 factor) does not ask the duals for
+        # multipliers of 1e4 (measured: Glucose then converges in 65k iterations instead of stalling at 100k).
+        g0 = jnp.max(jnp.abs(column * jax.grad(f)(w0, data)), initial=0.0)
+        sigma = jnp.where(jnp.isfinite(g0), jnp.minimum(1.0, _MAX_START_GRADIENT / jnp.maximum(g0, 1e-300)), 1.0)
+        sigma = sigma if scale_objective else jnp.ones_like(sigma)
+        return _Scales(sigma.astype(dtype), column, row)
+
+    def evaluate(p, duals, rho, data, scales: _Scales) -> _Point:
         lam, mu_u, mu_l = duals
+        sigma, r = scales.sigma, scales.row
         w = to_w(p)
         if m:
             (_, c), vjp = jax.vjp(lambda w_: (f(w_, data), c_fn(w_, data)), w)
             h, g_u, g_l = c[eq_idx] - c_lo[eq_idx], c[up_idx] - c_up[up_idx], c_lo[lo_idx] - c[lo_idx]
-            # First-order multiplier estimates: grad_w L_rho = grad F + J^T y exactly.
-            y_eq, y_u, y_l = lam + rho * h, jnp.maximum(mu_u + rho * g_u, 0.0), jnp.maximum(mu_l + rho * g_l, 0.0)
+            # The Lagrangian is built on the scaled rows r * c; feasibility and complementarity below are judged on
+            # the rows as given.
+            hs, g_us, g_ls = r[eq_idx] * h, r[up_idx] * g_u, r[lo_idx] * g_l
+            # First-order multiplier estimates: grad_w L_rho = sigma grad F + J^T y exactly (y in the given rows).
+            y_eq, y_u, y_l = lam + rho * hs, jnp.maximum(mu_u + rho * g_us, 0.0), jnp.maximum(mu_l + rho * g_ls, 0.0)
+            y_eq, y_u, y_l = r[eq_idx] * y_eq, r[up_idx] * y_u, r[lo_idx] * y_l
             y = jnp.zeros(m, dtype=w.dtype).at[eq_idx].add(y_eq).at[up_idx].add(y_u).at[lo_idx].add(-y_l)
             (grad_w,) = vjp((sigma, y))
             # dL_rho/dmu = (max(0, mu + rho g) - mu) / rho = max(g, -mu / rho); g itself when rho = 0.
             safe = jnp.maximum(rho, 1e-300)
-            ascent_u = jnp.where(rho > 0, jnp.maximum(g_u, -mu_u / safe), g_u)
-            ascent_l = jnp.where(rho > 0, jnp.maximum(g_l, -mu_l / safe), g_l)
+            ascent_u = jnp.where(rho > 0, jnp.maximum(g_us, -mu_u / safe), g_us)
+            ascent_l = jnp.where(rho > 0, jnp.maximum(g_ls, -mu_l / safe), g_ls)
             # Dual steps in units of the penalty: they grow with it, as in the method of multipliers.
             ratio = rho / rho0 if rho0 > 0 else jnp.ones((), dtype=w.dtype)
-            grad_duals = (-h * ratio, -ascent_u * ratio, -ascent_l * ratio)
+            grad_duals = (-hs * ratio, -ascent_u * ratio, -ascent_l * ratio)
             g_all, y_ineq = jnp.concatenate([g_u, g_l]), jnp.concatenate([y_u, y_l])
             violation = jnp.max(jnp.concatenate([jnp.zeros(1), jnp.abs(h), g_all]))
             complementarity = jnp.max(jnp.concatenate([jnp.zeros(1), jnp.abs(jnp.minimum(y_ineq, -g_all))]))
@@ -378,17 +478,24 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
             y = jnp.zeros(0, dtype=w.dtype)
             grad_duals = (jnp.zeros(0, dtype=w.dtype),) * 3
             violation = complementarity = jnp.zeros((), dtype=w.dtype)
+        # Stationarity in w (not in the column-scaled v = w / d, where it would be looser by d): the same test
+        # whatever the scaling.
         stationarity = jnp.max(jnp.abs(w - jnp.clip(w - grad_w, lo, hi)), initial=0.0)
         kkt = jnp.maximum(jnp.maximum(stationarity, violation), complementarity)
         kkt = jnp.where(jnp.isfinite(kkt) & jnp.all(jnp.isfinite(w)), kkt, jnp.inf)
         return _Point(grad_w * dw_dp(p), grad_duals, kkt, violation, y)
 
-    def step(origin_p, origin_duals, state_p, state_d, at: _Point):
-        """One projected optax step from ``origin`` along the gradients ``at`` a (possibly other) point."""
+    def step(origin_p, origin_duals, state_p, state_d, at: _Point, d):
+        """One projected optax step from ``origin`` along the gradients ``at`` a (possibly other) point.
+
+        The primal rule acts on ``v = p / d``: it sees the gradient ``d * grad_p`` and its step ``dv`` is ``d * dv`` in
+        ``p``. For AMSGrad, whose steps are about ``lr`` whatever the gradient's size, that makes a variable's steps
+        proportional to its magnitude ``d``.
+        """
         with _optax_promotion():
-            update_p, state_p = primal.update(at.grad_p, state_p, origin_p)
+            update_v, state_p = primal.update(at.grad_p * d, state_p, origin_p / d)
             update_d, state_d = dual.update(at.grad_duals, state_d, origin_duals)
-        p = project_p(origin_p + update_p)
+        p = project_p(origin_p + d * update_v)
         duals = project_duals(jax.tree.map(jnp.add, origin_duals, update_d))
         return p, duals, state_p, state_d
 
@@ -399,14 +506,9 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
         with _optax_promotion():
             states0 = primal.init(p0), dual.init(duals0)
         rho_init = jnp.asarray(rho0, dtype=z0.dtype)
-        # Objective scaling as IPOPT's gradient-based rule: a start gradient above 100 is scaled down to 100, so an
-        # objective like Glucose's (a 1e5 factor) does not ask the duals for multipliers of 1e4 (measured: Glucose
-        # then converges in 65k iterations instead of stalling at 100k; problems with smaller gradients unchanged).
-        g0 = jnp.max(jnp.abs(jax.grad(f)(to_w(p0), data)), initial=0.0)
-        sigma = jnp.where(jnp.isfinite(g0), jnp.minimum(1.0, _MAX_START_GRADIENT / jnp.maximum(g0, 1e-300)), 1.0)
-        sigma = sigma if scale_objective else jnp.ones_like(sigma)
-        sigma = sigma.astype(z0.dtype)
-        point0 = evaluate(p0, duals0, rho_init, data, sigma)
+        scales = make_scales(to_w(p0), data, z0.dtype)
+        d = scales.column
+        point0 = evaluate(p0, duals0, rho_init, data, scales)
         init = (jnp.zeros((), jnp.int32), p0, duals0, *states0, point0, rho_init, point0.violation)
 
         def cond(carry):
@@ -419,11 +521,11 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
             # NOTE: the optimiser states are threaded through both half-steps; restarting the second from the old
             # state measured worse (see the class docstring).
             # Look ahead from (p, duals) with the gradient there ...
-            p_half, duals_half, state_p, state_d = step(p, duals, state_p, state_d, point)
+            p_half, duals_half, state_p, state_d = step(p, duals, state_p, state_d, point, d)
             # ... and step from (p, duals) again with the gradient at the look-ahead point.
-            point_half = evaluate(p_half, duals_half, rho, data, sigma)
-            p, duals, state_p, state_d = step(p, duals, state_p, state_d, point_half)
-            point = evaluate(p, duals, rho, data, sigma)
+            point_half = evaluate(p_half, duals_half, rho, data, scales)
+            p, duals, state_p, state_d = step(p, duals, state_p, state_d, point_half, d)
+            point = evaluate(p, duals, rho, data, scales)
             checkpoint = (k + 1) % every == 0
             stalled = checkpoint & (point.violation > 0.9 * v_ref) & (point.violation > tol)
             rho = jnp.where(stalled, jnp.minimum(rho * growth, rho_max), rho)
@@ -433,7 +535,7 @@ def _make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[A
         k, p, duals, _, _, point, _, _ = jax.lax.while_loop(cond, body, init)
         return ExtragradientSolution(
             z=to_w(p) * scale,
-            multipliers=point.multipliers / sigma,  # back to the unscaled objective's multipliers
+            multipliers=point.multipliers / scales.sigma,  # back to the unscaled objective's multipliers
             iterations=k,
             converged=point.kkt <= tol,
             violation=point.violation,

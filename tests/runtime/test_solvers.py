@@ -236,6 +236,33 @@ def test_extragradient_sigmoid_bounds(case_name):
     assert np.all(result.z >= case.nlp.z_lower) and np.all(result.z <= case.nlp.z_upper)
 
 
+def test_extragradient_start_scaling_undoes_the_units_of_the_variables():
+    # HS71 in z = s * x with s spanning 1e-2..1e3 and *no* z_scale: scaling="guess" takes the magnitudes from the start,
+    # which restores HS71's own (well-scaled) problem; with scaling="bounds" there is nothing to scale by, and the same
+    # solver exhausts its budget far from the solution and says so.
+    nlp = dataclasses.replace(hs71_nlp(HS71_SCALE), z_scale=None, name="hs71_units")
+    guess = Extragradient().solve(nlp, NO_DATA)
+    assert guess.success, guess.message
+    np.testing.assert_allclose(guess.z / HS71_SCALE, HS71_Z, atol=1e-5)
+    assert abs(guess.objective - HS71_F) <= 1e-5
+    np.testing.assert_allclose(guess.multipliers, HS71_Y, atol=1e-4)
+    plain = Extragradient(scaling="bounds").solve(nlp, NO_DATA)
+    assert not plain.success and plain.status == 1
+    assert np.max(np.abs(plain.z / HS71_SCALE - HS71_Z)) > 1e-2
+
+
+@pytest.mark.parametrize("case_name", ["eq_qp", "hs71", "disc"])
+def test_extragradient_without_start_scaling(case_name):
+    # scaling="bounds" (only z_scale) stays a working mode: the known solutions, to the default mode's tolerances.
+    case = CASES[case_name]
+    result = Extragradient(scaling="bounds").solve(case.nlp, case.data)
+    z_tol, f_tol, y_tol = TOLERANCES["extragradient"]
+    assert result.success, result.message
+    assert np.max(np.abs(result.z - case.z_star)) <= z_tol
+    assert abs(result.objective - case.f_star) <= f_tol
+    np.testing.assert_allclose(result.multipliers, case.y_star, atol=y_tol)
+
+
 def test_extragradient_scales_a_steep_objective():
     # The same problem from the origin, where |grad F| = 4000: scaled to 100, plain ascent at a fixed penalty suffices,
     # and the multipliers come back in the unscaled objective's units.
@@ -474,6 +501,7 @@ def test_solver_configs_are_frozen_and_hashable():
         (lambda: Ipopt(hessian="bfgs"), "'exact', 'limited-memory'"),
         (lambda: Extragradient(bounds="barrier"), "'projection', 'sigmoid'"),
         (lambda: Extragradient(step="adam"), "GradientTransformation"),
+        (lambda: Extragradient(scaling="rows"), "'guess', 'bounds'"),
         (lambda: SLSQP(tol=0.0), "positive"),
     ],
 )
