@@ -33,10 +33,12 @@ from myriad.runtime.transcriptions import SingleShooting, Trapezoidal  # noqa: E
 
 def make_batch(system, batch: int, spread: float, seed: int):
     """Every parameter and every initial state scaled by independent factors U(1 - spread, 1 + spread); initial
-    states are kept strictly inside their bounds."""
+    states are kept strictly inside their bounds. Parameters that bounds or final values were compiled with
+    (``system.structural_params``) keep their value: the runtime refuses to vary them."""
     rng = np.random.default_rng(seed)
     base = system.default_params()
-    params = {k: float(v) * rng.uniform(1 - spread, 1 + spread, batch) for k, v in base.items()}
+    params = {k: float(v) * rng.uniform(1 - spread, 1 + spread, batch) for k, v in base.items()
+              if k not in system.structural_params}
     arrays = system.arrays()
     x0 = np.asarray(arrays["x0"], float) * rng.uniform(1 - spread, 1 + spread, (batch, system.n_states))
     lo, hi = np.asarray(arrays["x_lower"], float), np.asarray(arrays["x_upper"], float)
