@@ -20,7 +20,9 @@ module import, so ``import myriad.compiler`` neither needs nor loads it.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import operator
 import os
 from typing import Any, Mapping
 
@@ -266,23 +268,13 @@ class _Converter:
     def _build(self, node, args):
         ca = self.ca
         if isinstance(node, sympy.Add):
-            out = args[0]
-            for a in args[1:]:
-                out = out + a
-            return out
+            return functools.reduce(operator.add, args)
         if isinstance(node, sympy.Mul):
-            out = args[0]
-            for a in args[1:]:
-                out = out * a
-            return out
+            return functools.reduce(operator.mul, args)
         if isinstance(node, sympy.Pow):
             return self._pow(node, *args)
         if isinstance(node, (sympy.Min, sympy.Max)):
-            fold = ca.fmin if isinstance(node, sympy.Min) else ca.fmax
-            out = args[0]
-            for a in args[1:]:
-                out = fold(out, a)
-            return out
+            return functools.reduce(ca.fmin if isinstance(node, sympy.Min) else ca.fmax, args)
         if isinstance(node, sympy.functions.elementary.piecewise.ExprCondPair):
             return tuple(args)  # (value, condition), consumed by the Piecewise above it
         if isinstance(node, sympy.Piecewise):
@@ -293,11 +285,7 @@ class _Converter:
         if isinstance(node, sympy.core.relational.Relational):
             return self.relations[node.rel_op](*args)
         if isinstance(node, (sympy.And, sympy.Or)):
-            fold = ca.logic_and if isinstance(node, sympy.And) else ca.logic_or
-            out = args[0]
-            for a in args[1:]:
-                out = fold(out, a)
-            return out
+            return functools.reduce(ca.logic_and if isinstance(node, sympy.And) else ca.logic_or, args)
         if isinstance(node, sympy.Not):
             return ca.logic_not(args[0])
         fn = self.functions[node.func]
