@@ -17,7 +17,7 @@ from typing import Any, Callable
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["NLP", "NLPResult"]
+__all__ = ["NLP", "NLPResult", "evaluation"]
 
 Data = Any  # {"params": dict[str, Array], "x0": Array}
 
@@ -57,10 +57,7 @@ class NLP:
 
     def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:
         """``(F(z), c(z))``, fused when the transcription provides it; ``c`` is an empty array without constraints."""
-        if self.objective_and_constraints is not None:
-            return self.objective_and_constraints(z, data)
-        c = self.constraints(z, data) if self.constraints is not None else jnp.zeros(0)
-        return self.objective(z, data), c
+        return evaluation(self.objective, self.constraints, self.objective_and_constraints)(z, data)
 
     @property
     def n_variables(self) -> int:
@@ -69,6 +66,22 @@ class NLP:
     @property
     def n_constraints(self) -> int:
         return int(self.c_lower.shape[0])
+
+
+def evaluation(
+    objective: Callable[[Any, Data], Any],
+    constraints: Callable[[Any, Data], Any] | None,
+    fused: Callable[[Any, Data], tuple[Any, Any]] | None,
+) -> Callable[[Any, Data], tuple[Any, Any]]:
+    """``(z, data) -> (F, c)`` from an NLP's functions: ``fused`` itself when given, else both calls.
+
+    Takes the functions rather than the NLP so that solvers can keep the result in a cache keyed weakly by the NLP.
+    """
+    if fused is not None:
+        return fused
+    if constraints is None:
+        return lambda z, data: (objective(z, data), jnp.zeros(0, dtype=jnp.result_type(z)))
+    return lambda z, data: (objective(z, data), constraints(z, data))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..nlp import NLP, NLPResult
+from ..nlp import NLP, NLPResult, evaluation
 
 __all__ = [
     "AbstractNLPSolver",
@@ -152,13 +152,7 @@ class ScaledProblem:
         if c is None and nlp.n_constraints:
             raise ValueError(f"{nlp.name}: constraints is None but c_lower has {nlp.n_constraints} entries")
         s = jnp.asarray(scale)
-        fused = nlp.objective_and_constraints
-        if fused is not None:
-            evaluate = lambda w, data: fused(w * s, data)  # noqa: E731
-        elif c is not None:
-            evaluate = lambda w, data: (f(w * s, data), c(w * s, data))  # noqa: E731
-        else:
-            evaluate = lambda w, data: (f(w * s, data), jnp.zeros(0, dtype=w.dtype))  # noqa: E731
+        evaluate_z = evaluation(f, c, nlp.objective_and_constraints)
         return cls(
             objective=lambda w, data: f(w * s, data),
             constraints=None if nlp.n_constraints == 0 else (lambda w, data: c(w * s, data)),
@@ -167,7 +161,7 @@ class ScaledProblem:
             w_upper=np.asarray(nlp.z_upper, dtype=np.float64) / scale,
             c_lower=np.asarray(nlp.c_lower, dtype=np.float64),
             c_upper=np.asarray(nlp.c_upper, dtype=np.float64),
-            evaluate=evaluate,
+            evaluate=lambda w, data: evaluate_z(w * s, data),
         )
 
     @property

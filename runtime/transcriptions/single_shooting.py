@@ -75,24 +75,22 @@ class SingleShooting(AbstractTranscription):
             L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
             return f, L
 
-        def objective(z, data):
-            params = data["params"]
-            f, L = fields(params)
-            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z), self.checkpoint)
-            return cost[-1] + system.terminal_cost(xs[-1], T, params)
-
-        def constraints(z, data):
-            f, _ = fields(data["params"])
-            xT = rollout(integrator, f, data["x0"], 0.0, h, controls_of(z), self.checkpoint)[-1]
+        def final_rows(xT):
             return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
 
         def objective_and_constraints(z, data):
             params = data["params"]
             f, L = fields(params)
             xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z), self.checkpoint)
-            xT = xs[-1]
-            rows = jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
-            return cost[-1] + system.terminal_cost(xT, T, params), rows
+            return cost[-1] + system.terminal_cost(xs[-1], T, params), final_rows(xs[-1])
+
+        def objective(z, data):
+            return objective_and_constraints(z, data)[0]
+
+        def constraints(z, data):
+            # Without the cost state: the cheaper rollout when only the rows are wanted.
+            f, _ = fields(data["params"])
+            return final_rows(rollout(integrator, f, data["x0"], 0.0, h, controls_of(z), self.checkpoint)[-1])
 
         def unravel(z, data):
             f, _ = fields(data["params"])
