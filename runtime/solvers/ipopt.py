@@ -259,11 +259,10 @@ class _Derivatives:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
         jobs = [(self.hvps, self.hvp_args(w0, data))] if exact else []
         seconds = compile_many(jobs + [(self.point, (w0, data))])
-        if exact:
-            if self.hessian_structure is None:
-                start = time.perf_counter()
-                self._detect_hessian(w0, data)
-                seconds += time.perf_counter() - start
+        if exact and self.hessian_structure is None:
+            start = time.perf_counter()
+            self._detect_hessian(w0, data)
+            seconds += time.perf_counter() - start
         return seconds
 
     def _detect_hessian(self, w0: np.ndarray, data: Any) -> None:
