@@ -1,5 +1,9 @@
 """The pipeline and the build driver: ``compile_spec = render ∘ lower ∘ check ∘ symbolic ∘ parse``.
 
+The passes are the modules :mod:`.parse`, :mod:`.symbolic` (expressions through the grammar of :mod:`.expressions`),
+:mod:`.checks`, :mod:`.lower` (printing, via :mod:`.printer`, the Hamiltonian, costates and u* that
+:mod:`.optimal_control` derives) and :mod:`.render`.
+
 ``build`` compiles every spec first and writes only if all of them compiled, so a bad spec never leaves a partial
 output behind; files are replaced atomically and only when their bytes change.
 """
@@ -12,11 +16,12 @@ import os
 import tempfile
 from pathlib import Path
 
-from . import checks, lower as lower_mod, parse, render, symbolic
+from . import checks, parse, render, symbolic
+from . import lower as lower_mod
 from .errors import CodegenError, Location, SpecError, SpecErrors
 from .schema import CodegenData, SymbolicProblem
 
-__all__ = ["compile_spec", "compile_file", "build", "BuildResult", "Compiled", "DEFAULT_OUT", "spec_files"]
+__all__ = ["DEFAULT_OUT", "BuildResult", "Compiled", "build", "compile_file", "compile_spec", "spec_files"]
 
 # runtime/systems beside this package (the repository layout, and site-packages/myriad/ in a wheel).
 DEFAULT_OUT = Path(__file__).resolve().parent.parent / "runtime" / "systems"

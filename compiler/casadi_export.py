@@ -8,7 +8,7 @@
 
 This is an independent peer of the generated JAX code (bench/casadi_peer.py solves the same discretised problems
 with CasADi + IPOPT; tests/compiler/test_casadi_export.py checks that both agree). It starts from the compiler's
-checked :class:`~myriad.compiler.schema.SymbolicProblem` and :func:`~myriad.compiler.lower.derive` (so a
+checked :class:`~myriad.compiler.schema.SymbolicProblem` and :func:`~myriad.compiler.optimal_control.derive` (so a
 ``maximize`` spec is negated exactly as for JAX), and never sees spec text: every sympy expression is walked node by
 node against an explicit whitelist (:data:`SUPPORTED`), and any other node raises :class:`CasadiExportError` naming
 it and the field it came from.
@@ -24,16 +24,17 @@ import functools
 import math
 import operator
 import os
-from typing import Any, Mapping
+from collections.abc import Mapping
+from typing import Any
 
 import sympy
 
 from .errors import CodegenError
-from .lower import derive
+from .expressions import wrap_floor, wrap_mod
+from .optimal_control import derive
 from .schema import SymbolicProblem
-from .symbolic import wrap_floor, wrap_mod
 
-__all__ = ["CasadiSystem", "CasadiExportError", "to_casadi", "export_file", "sympy_to_casadi", "SUPPORTED"]
+__all__ = ["SUPPORTED", "CasadiExportError", "CasadiSystem", "export_file", "sympy_to_casadi", "to_casadi"]
 
 # What the walk accepts, for messages and documentation (the dispatch itself is in _Converter).
 SUPPORTED = (

@@ -15,10 +15,10 @@ import re
 import sympy
 
 from .errors import Location, SpecError
+from .expressions import CONSTANTS, FUNCTIONS
 from .schema import ProblemSpec, SymbolicProblem
-from .symbolic import CONSTANTS, FUNCTIONS
 
-__all__ = ["check_names", "check_problem", "RESERVED"]
+__all__ = ["RESERVED", "check_names", "check_problem"]
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 _SYSTEM_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")

@@ -6,11 +6,13 @@ instead of sympy's default of emitting a "Not supported" comment or a partially 
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import sympy
 from sympy.printing.numpy import JaxPrinter
 
 from .errors import CodegenError
-from .symbolic import wrap_floor, wrap_mod
+from .expressions import wrap_floor, wrap_mod
 
 __all__ = ["StrictJaxPrinter"]
 
@@ -31,13 +33,13 @@ class StrictJaxPrinter(JaxPrinter):
         field: the spec field being printed, for error messages (set with :meth:`for_field`).
     """
 
-    _default_settings = {**JaxPrinter._default_settings, "strict": True, "fully_qualified_modules": True}
+    _default_settings: ClassVar[dict] = {**JaxPrinter._default_settings, "strict": True, "fully_qualified_modules": True}
 
     def __init__(self, settings=None):
         super().__init__(settings or {})
         self.field = "<expression>"
 
-    def for_field(self, field: str) -> "StrictJaxPrinter":
+    def for_field(self, field: str) -> StrictJaxPrinter:
         self.field = field
         return self
 
@@ -78,7 +80,7 @@ class StrictJaxPrinter(JaxPrinter):
         args = sorted(args, key=sympy.default_sort_key)
         out = self._print(args[0])
         for a in args[1:]:
-            out = "{}({}, {})".format(self._jnp(fn), out, self._print(a))
+            out = f"{self._jnp(fn)}({out}, {self._print(a)})"
         return out
 
     def _print_Piecewise(self, expr):
@@ -94,7 +96,7 @@ class StrictJaxPrinter(JaxPrinter):
         op = _REL.get(expr.rel_op)
         if op is None:
             return self._unsupported(expr)
-        return "{}({}, {})".format(self._jnp(op), self._print(expr.lhs), self._print(expr.rhs))
+        return f"{self._jnp(op)}({self._print(expr.lhs)}, {self._print(expr.rhs)})"
 
     def _print_And(self, expr):
         return self._fold("logical_and", expr.args)

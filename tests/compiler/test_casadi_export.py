@@ -14,7 +14,7 @@ ca = pytest.importorskip("casadi")
 
 from myriad.compiler.build import check_file  # noqa: E402
 from myriad.compiler.casadi_export import CasadiExportError, export_file, sympy_to_casadi, to_casadi  # noqa: E402
-from myriad.compiler.symbolic import wrap_floor, wrap_mod  # noqa: E402
+from myriad.compiler.expressions import wrap_floor, wrap_mod  # noqa: E402
 from myriad.runtime import load  # noqa: E402
 
 from ..helpers import ALL_SPECS, ROOT, sample_interval  # noqa: E402

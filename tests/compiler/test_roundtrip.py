@@ -8,7 +8,7 @@ import pytest
 import sympy
 
 from myriad.compiler import compile_file
-from myriad.compiler.lower import derive
+from myriad.compiler.optimal_control import derive
 from myriad.runtime import load
 
 from ..helpers import ALL_SPECS, sample_interval
