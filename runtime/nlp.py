@@ -4,8 +4,9 @@
     subject to  c_lower <= c(z; data) <= c_upper      (equalities have c_lower == c_upper)
                 z_lower <= z <= z_upper
 
-``data`` is a pytree of problem data that may change between solves without recompiling: the system's parameters
-and the initial state, ``{"params": {...}, "x0": Array}``. Everything shape-like (sizes, bounds, sparsity) is static.
+``data`` is a pytree of problem data that may change between solves without recompiling: for a transcription, the
+system's parameters and initial state as a :class:`~myriad.runtime.data.ProblemData`; solvers treat it as opaque.
+Everything shape-like (sizes, bounds, sparsity) is static.
 Batches of problems that differ only in ``data`` can therefore be solved by ``jax.vmap`` over ``data``.
 """
 
@@ -17,9 +18,11 @@ from typing import Any, Callable
 import jax.numpy as jnp
 import numpy as np
 
+from .status import Status
+
 __all__ = ["NLP", "NLPResult", "evaluation"]
 
-Data = Any  # {"params": dict[str, Array], "x0": Array}
+Data = Any  # a pytree; ProblemData(params, x0) for a transcription's NLP
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -91,22 +94,29 @@ class NLPResult:
     Attributes:
         z: the final iterate.
         objective: F(z).
-        success: converged to the solver's tolerance and within the constraint tolerance.
-        status: solver-specific status code (int) and ``message`` its meaning.
+        status: the outcome (:class:`~myriad.runtime.status.Status`); only ``Status.CONVERGED`` (converged to the
+            solver's tolerance and within the constraint tolerance) is a success.
+        message: the solver's own words on the outcome.
         iterations: iterations taken.
         constraint_violation: max over constraint and bound violations at z.
         multipliers: constraint multipliers if the solver provides them, else None.
         compile_seconds: time spent tracing/compiling (first call only; 0 when cached).
         solve_seconds: wall time of the solve itself.
+        solver_code: the solver's own status code (IPOPT's return status, SciPy's exit mode, ...), kept for
+            reference beside ``status``.
     """
 
     z: Any
     objective: float
-    success: bool
-    status: int
+    status: Status
     message: str
     iterations: int
     constraint_violation: float
     multipliers: Any = None
     compile_seconds: float = 0.0
     solve_seconds: float = 0.0
+    solver_code: int = 0
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.CONVERGED

@@ -42,6 +42,7 @@ class Adaptive(AbstractIntegrator):
         max_steps: the most steps one interval may take.
     """
 
+    label: ClassVar[str] = "adaptive"
     order: ClassVar[int] = 5
 
     method: str = "tsit5"

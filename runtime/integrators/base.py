@@ -27,9 +27,11 @@ class AbstractIntegrator(abc.ABC):
     of other configuration objects.
 
     Attributes:
+        label: the registry name (``"heun"``), used by the CLI and in reports.
         order: the global order of accuracy p (error O(h^p)) for smooth f and smooth controls.
     """
 
+    label: ClassVar[str]
     order: ClassVar[int]
 
     @abc.abstractmethod

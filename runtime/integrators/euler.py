@@ -19,6 +19,7 @@ class Euler(AbstractIntegrator):
     Only the control at the start of the step is used.
     """
 
+    label: ClassVar[str] = "euler"
     order: ClassVar[int] = 1
 
     def step(self, f, x, t, h, u0, u1):

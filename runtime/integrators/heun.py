@@ -23,6 +23,7 @@ class Heun(AbstractIntegrator):
     corrected x_{k+1}.
     """
 
+    label: ClassVar[str] = "heun"
     order: ClassVar[int] = 2
 
     def step(self, f, x, t, h, u0, u1):

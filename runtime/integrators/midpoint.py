@@ -18,6 +18,7 @@ class Midpoint(AbstractIntegrator):
         x_{k+1} = x_k + h f(x_k + h k1 / 2, (u_k + u_{k+1}) / 2, t_k + h / 2).
     """
 
+    label: ClassVar[str] = "midpoint"
     order: ClassVar[int] = 2
 
     def step(self, f, x, t, h, u0, u1):

@@ -24,6 +24,7 @@ class RK4(AbstractIntegrator):
     linear interpolant is a separate O(h^2) effect of the control parametrisation, not of the integrator.
     """
 
+    label: ClassVar[str] = "rk4"
     order: ClassVar[int] = 4
 
     def step(self, f, x, t, h, u0, u1):

@@ -9,6 +9,7 @@ from .base import constraint_violation as constraint_violation
 from .extragradient import Extragradient as Extragradient
 from .extragradient import ExtragradientSolution as ExtragradientSolution
 from .ipopt import Ipopt as Ipopt
+from .pure import AbstractPureSolver as AbstractPureSolver
 from .slsqp import SLSQP as SLSQP
 
 SOLVERS: dict[str, type[AbstractNLPSolver]] = {
@@ -19,6 +20,7 @@ SOLVERS: dict[str, type[AbstractNLPSolver]] = {
 
 __all__ = [
     "AbstractNLPSolver",
+    "AbstractPureSolver",
     "Extragradient",
     "ExtragradientSolution",
     "Ipopt",

@@ -21,7 +21,7 @@ import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 import weakref
-from typing import Any, Callable, Hashable, TypeVar
+from typing import Any, Callable, ClassVar, Hashable, TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -48,7 +48,12 @@ class AbstractNLPSolver(abc.ABC):
     A solver object carries no per-problem state: everything compiled for an NLP lives in the cache of
     :func:`cached`, keyed weakly by the NLP, so one solver object can solve many NLPs and the same NLP can be solved
     repeatedly with new ``data`` without recompiling.
+
+    Class attributes:
+        label: the registry name (``"ipopt"``), used by the CLI and in reports.
     """
+
+    label: ClassVar[str]
 
     @abc.abstractmethod
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:

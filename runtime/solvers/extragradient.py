@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import time
-from typing import Any, Callable, Literal, NamedTuple, final
+from typing import Any, Callable, ClassVar, Literal, NamedTuple, final
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +11,7 @@ import numpy as np
 import optax
 
 from ..nlp import NLP, NLPResult
+from ..status import Status
 from .base import (
     AbstractNLPSolver,
     CompiledFunction,
@@ -22,16 +22,15 @@ from .base import (
     initial_point,
     split_constraints,
 )
+from .pure import AbstractPureSolver
 
 __all__ = ["Extragradient", "ExtragradientSolution"]
 
 _BOUNDS_MODES = ("projection", "sigmoid")
-# Status codes of NLPResult.status for this solver.
-CONVERGED, MAX_ITER, NOT_FINITE = 0, 1, 2
 _MESSAGES = {
-    CONVERGED: "converged: KKT residual and constraint violation below tol",
-    MAX_ITER: "maximum number of iterations reached before the KKT residual fell below tol",
-    NOT_FINITE: "stopped at a non-finite iterate (NaN or inf); try smaller steps",
+    Status.CONVERGED: "converged: KKT residual and constraint violation below tol",
+    Status.ITERATION_LIMIT: "maximum number of iterations reached before the KKT residual fell below tol",
+    Status.NOT_FINITE: "stopped at a non-finite iterate (NaN or inf); try smaller steps",
 }
 # Iterations between checks of the constraint violation's progress (see Extragradient, "Penalty"). Checking
 # every 500 with a demand to halve the violation grew the penalty on HS71 during its slow start and stalled it.
@@ -72,7 +71,7 @@ class ExtragradientSolution(NamedTuple):
 
 @final
 @dataclasses.dataclass(frozen=True)
-class Extragradient(AbstractNLPSolver):
+class Extragradient(AbstractPureSolver, AbstractNLPSolver):
     """Gradient descent-ascent on the (augmented) Lagrangian with an extragradient look-ahead, in pure JAX.
 
     With equalities ``h(w) = c_E(w) - c^l_E = 0`` and one-sided inequalities ``g(w) <= 0`` (``c_U - c^u_U`` for each
@@ -200,6 +199,8 @@ class Extragradient(AbstractNLPSolver):
         and deep learning.
     """
 
+    label: ClassVar[str] = "extragradient"
+
     step: optax.GradientTransformation | float = 0.1
     dual_step: optax.GradientTransformation | float = 0.1
     penalty: float = 1.0
@@ -229,78 +230,39 @@ class Extragradient(AbstractNLPSolver):
 
     # ---- public API --------------------------------------------------------------------------------------------
 
-    def solve_fn(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
-        """The jit-compiled solve ``(data, z0) -> ExtragradientSolution`` for ``nlp`` (cached per NLP and solver).
-
-        It is a pure JAX function: it can be ``vmap``-ed over ``data`` and ``z0`` or called inside other jitted code.
-        """
-        return self._compiled(nlp).jitted
-
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        return self._solve_single(nlp, data, z0)
+
+    # ---- the pure tier (see AbstractPureSolver) ----------------------------------------------------------------
+
+    def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
+        return self._compiled(nlp).raw
+
+    def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
+        return initial_point(nlp, data, z0)
+
+    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
+        return self._compiled(nlp).prepare_evaluation(z0, data)
+
+    def report(self, nlp: NLP, out: ExtragradientSolution, data: Any, compile_seconds: float,
+               solve_seconds: float) -> NLPResult:
         fns = self._compiled(nlp)
-        data = canonical_data(data)
-        z0 = initial_point(nlp, data, z0)
-        compile_seconds = fns.single.compile(data, z0) + fns.prepare_evaluation(z0, data)
-        start = time.perf_counter()
-        out = jax.block_until_ready(fns.single(data, z0))
-        solve_seconds = time.perf_counter() - start
-        return self._result(nlp, fns, out, data, compile_seconds, solve_seconds)
-
-    def solve_batch(self, nlp: NLP, batched_data: Any, z0: Any = None) -> list[NLPResult]:
-        """Solve one NLP for a batch of ``data`` (every leaf with a leading batch axis) as one vmapped program.
-
-        Args:
-            nlp: the nonlinear program.
-            batched_data: ``data`` with a leading batch axis of size ``B`` on every leaf.
-            z0: None (each member's ``nlp.initial_guess``), one start ``(n,)`` for all, or ``(B, n)``.
-
-        Returns:
-            ``B`` results, one per member. Their ``compile_seconds`` and ``solve_seconds`` are the batch's totals
-            divided by ``B`` (so that sums over the list are the batch's totals).
-        """
-        fns = self._compiled(nlp)
-        batched_data = canonical_data(batched_data)
-        sizes = {np.shape(x)[0] for x in jax.tree.leaves(batched_data)}
-        if len(sizes) != 1:
-            raise ValueError(f"solve_batch: every leaf of batched_data needs the same leading axis, got {sizes}")
-        (batch,) = sizes
-        members = [jax.tree.map(lambda x, i=i: x[i], batched_data) for i in range(batch)]
-        if z0 is None:
-            z0 = np.stack([initial_point(nlp, d, None) for d in members])
-        z0 = np.broadcast_to(np.asarray(z0, dtype=np.float64), (batch, nlp.n_variables)).copy()
-
-        compile_seconds = fns.batched.compile(batched_data, z0) + fns.prepare_evaluation(z0[0], members[0])
-        start = time.perf_counter()
-        out = jax.block_until_ready(fns.batched(batched_data, z0))
-        solve_seconds = time.perf_counter() - start
-        return [
-            self._result(nlp, fns, jax.tree.map(lambda x, i=i: x[i], out), members[i], compile_seconds / batch,
-                         solve_seconds / batch)
-            for i in range(batch)
-        ]
-
-    # ---- implementation ----------------------------------------------------------------------------------------
-
-    def _compiled(self, nlp: NLP) -> "_Compiled":
-        return cached(nlp, ("extragradient", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
-
-    def _result(self, nlp, fns, out: ExtragradientSolution, data, compile_seconds, solve_seconds) -> NLPResult:
         z = np.asarray(out.z)
         objective = float(fns.objective(z, data))
         c = np.asarray(fns.constraints(z, data)) if fns.problem.n_constraints else None
         violation = constraint_violation(nlp, z, c)
         converged = bool(out.converged) and np.isfinite(objective)
         if converged:
-            status = CONVERGED
+            status = Status.CONVERGED
         elif int(out.iterations) >= self.max_iter and np.all(np.isfinite(z)) and np.isfinite(objective):
-            status = MAX_ITER
+            status = Status.ITERATION_LIMIT
         else:  # the loop stops early only at a non-finite point
-            status = NOT_FINITE
+            status = Status.NOT_FINITE
         return NLPResult(
             z=z,
             objective=objective,
-            success=converged,
             status=status,
+            solver_code=int(status),
             message=_MESSAGES[status],
             iterations=int(out.iterations),
             constraint_violation=violation,
@@ -309,16 +271,18 @@ class Extragradient(AbstractNLPSolver):
             solve_seconds=solve_seconds,
         )
 
+    # ---- implementation ----------------------------------------------------------------------------------------
+
+    def _compiled(self, nlp: NLP) -> "_Compiled":
+        return cached(nlp, ("extragradient", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
+
 
 class _Compiled:
     """The jitted solve (single and batched) and objective for one NLP and one solver configuration."""
 
     def __init__(self, problem: ScaledProblem, solver: Extragradient):
         self.problem = problem
-        raw = _make_solve_fn(problem, solver)
-        self.jitted = jax.jit(raw)
-        self.single = CompiledFunction(raw)
-        self.batched = CompiledFunction(jax.vmap(raw))
+        self.raw = _make_solve_fn(problem, solver)
         f, scale = problem.objective, jnp.asarray(problem.scale)
         self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
         if problem.n_constraints:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Literal, Mapping, final
+from typing import Any, ClassVar, Literal, Mapping, final
 
 import cyipopt
 import jax
@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..nlp import NLP, NLPResult
+from ..status import from_ipopt
 from .base import (
     AbstractNLPSolver,
     CompiledFunction,
@@ -86,6 +87,8 @@ class Ipopt(AbstractNLPSolver):
             pairs so that the solver stays hashable.
     """
 
+    label: ClassVar[str] = "ipopt"
+
     tol: float = 1e-8
     max_iter: int = 3000
     hessian: Literal["exact", "limited-memory"] = "exact"
@@ -151,13 +154,13 @@ class Ipopt(AbstractNLPSolver):
         c = np.asarray(info["g"]) if problem.n_constraints else None
         violation = constraint_violation(nlp, z, c)
         objective = float(info["obj_val"])
-        status = int(info["status"])
-        success, message = judge(status, info["status_msg"], violation, objective, self.constr_viol_tol)
+        code = int(info["status"])
+        success, message = judge(code, info["status_msg"], violation, objective, self.constr_viol_tol)
         return NLPResult(
             z=z,
             objective=objective,
-            success=bool(success),
-            status=status,
+            status=from_ipopt(code, success),
+            solver_code=code,
             message=message,
             iterations=callbacks.iterations,
             constraint_violation=violation,

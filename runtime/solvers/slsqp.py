@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, final
+from typing import Any, ClassVar, final
 
 import jax
 import numpy as np
 import scipy.optimize
 
 from ..nlp import NLP, NLPResult
+from ..status import from_scipy_slsqp
 from .base import (
     AbstractNLPSolver,
     CompiledFunction,
@@ -58,6 +59,8 @@ class SLSQP(AbstractNLPSolver):
         max_iter: SciPy's ``maxiter``.
         constr_viol_tol: the largest constraint or bound violation a successful solve may have.
     """
+
+    label: ClassVar[str] = "slsqp"
 
     tol: float = 1e-9
     max_iter: int = 500
@@ -125,8 +128,8 @@ class SLSQP(AbstractNLPSolver):
         return NLPResult(
             z=z,
             objective=objective,
-            success=bool(success),
-            status=int(res.status),
+            status=from_scipy_slsqp(int(res.status), bool(success)),
+            solver_code=int(res.status),
             message=message,
             iterations=int(res.nit),
             constraint_violation=violation,

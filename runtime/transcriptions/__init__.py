@@ -3,8 +3,8 @@
 Look one up by name with ``TRANSCRIPTIONS["hermite_simpson"](intervals=50)``; see README.md in this folder to add one.
 """
 
+from ..data import default_data as default_data
 from ._common import control_scale as control_scale
-from ._common import default_data as default_data
 from ._common import state_scale as state_scale
 from .base import AbstractTranscription as AbstractTranscription
 from .fbsm import ForwardBackwardSweep as ForwardBackwardSweep

@@ -11,7 +11,6 @@ import numpy as np
 from ..system import System
 
 __all__ = [
-    "default_data",
     "nominal_scale",
     "state_scale",
     "control_scale",
@@ -22,49 +21,6 @@ __all__ = [
     "bounded_free_states",
     "node_state_bounds",
 ]
-
-
-def default_data(system: System, params: dict | None = None, x0: Any = None) -> dict[str, Any]:
-    """The ``data`` pytree every NLP function takes: ``{"params": dict[str, Array], "x0": Array}``.
-
-    Args:
-        system: the system.
-        params: parameter values; missing names take the spec's defaults.
-        x0: the initial state; defaults to ``system.x0``.
-    """
-    # Every leaf gets the same concrete (not weakly typed) float dtype, whatever the caller passed: a Python float
-    # and a float64 array trace differently, and a jitted NLP function would silently recompile for new data.
-    dtype = jax.dtypes.canonicalize_dtype(np.float64)
-    p = system.default_params(dtype)
-    if params is not None:
-        unknown = set(params) - set(p)
-        if unknown:
-            raise KeyError(f"{system.name}: unknown parameters {sorted(unknown)}; expected some of {list(p)}")
-        check_structural_params(system, params)
-        p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
-    x0 = system.x0 if x0 is None else x0
-    return {"params": p, "x0": jnp.asarray(x0, dtype=dtype)}
-
-
-def check_structural_params(system: System, params: dict) -> None:
-    """Refuse a new value for a parameter that the spec's initial values, bounds, final values or horizon use.
-
-    Those fields are compiled as numbers at the spec's parameter values, so solving with another value would
-    silently keep, e.g., Predator-Prey's required z(T) = B at 5 while ``B`` says 4. Traced values (inside a
-    transformation) cannot be compared and pass.
-    """
-    for name in system.structural_params:
-        if name not in params or isinstance(params[name], jax.core.Tracer):
-            continue
-        default = system.param_values[system.param_names.index(name)]
-        value = np.asarray(params[name], dtype=np.float64)
-        if not np.all(value == default):
-            raise ValueError(
-                f"{system.name}: parameter `{name}` = {value.ravel()[0] if value.size == 1 else value} differs from "
-                f"the spec's {default:g}, but the spec's initial values, bounds, final values or horizon use `{name}`, "
-                f"and those are compiled as numbers at {name} = {default:g}; they would not follow. Copy the spec "
-                f"with the new value of `{name}` and load that file instead"
-            )
 
 
 def nominal_scale(lower: np.ndarray, upper: np.ndarray, fallback: np.ndarray | None = None) -> np.ndarray:

@@ -4,26 +4,33 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import functools
 from typing import Any, Callable
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from ..data import ProblemData
+from ..method import AbstractMethod
 from ..nlp import NLP
+from ..solution import Solution
+from ..solvers import AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
 from ..system import System
 
-__all__ = ["AbstractTranscription", "TrajectoryFn"]
+__all__ = ["AbstractTranscription", "TrajectoryFn", "transcribe"]
 
 # t (K,) -> values (K, d): a trajectory evaluated at an array of times.
 TrajectoryFn = Callable[[np.ndarray], Any]
 
 
 @dataclasses.dataclass(frozen=True)
-class AbstractTranscription(abc.ABC):
+class AbstractTranscription(AbstractMethod):
     """Turns a :class:`~myriad.runtime.system.System` into an :class:`~myriad.runtime.nlp.NLP`.
 
     Conventions shared by every transcription (so solvers and the bench can treat them alike):
 
-    - The decision vector ``z`` never contains the initial state: x(0) is read from ``data["x0"]`` in every
+    - The decision vector ``z`` never contains the initial state: x(0) is read from ``data.x0`` in every
       function, so the initial state can change without recompiling (and bounds, which are static, never depend
       on it).
     - The objective is J = phi(x(T)) + int L dt in minimisation form, in the transcription's quadrature.
@@ -44,8 +51,8 @@ class AbstractTranscription(abc.ABC):
 
     @abc.abstractmethod
     def transcribe(self, system: System) -> NLP:
-        """Build the NLP for ``system``; every function of it takes ``(z, data)`` with
-        ``data = {"params": dict, "x0": array}`` (see :func:`~myriad.runtime.transcriptions.default_data`)."""
+        """Build the NLP for ``system``; every function of it takes ``(z, data)`` with ``data`` a
+        :class:`~myriad.runtime.data.ProblemData` (see :func:`~myriad.runtime.data.default_data`)."""
 
     @abc.abstractmethod
     def sample(self, system: System, states: TrajectoryFn, controls: TrajectoryFn) -> np.ndarray:
@@ -61,3 +68,53 @@ class AbstractTranscription(abc.ABC):
         Returns:
             ``z``, a float64 array of shape (n_variables,).
         """
+
+    # ---- the method interface (see AbstractMethod) -------------------------------------------------------------
+
+    def solve_problem(self, system: System, solver: Any, data: ProblemData, z0: Any = None) -> Solution:
+        solver = Ipopt() if solver is None else solver
+        if not isinstance(solver, AbstractNLPSolver):
+            raise TypeError(f"{self.label}: the solver must be an NLP solver (ipopt, slsqp, extragradient), "
+                            f"got {type(solver).__name__}")
+        nlp = transcribe(system, self)
+        return _solution(system, self, solver, nlp, solver.solve(nlp, data, z0), data)
+
+    def solve_problems(self, system: System, solver: Any, data: ProblemData) -> list[Solution]:
+        solver = Extragradient() if solver is None else solver
+        if not isinstance(solver, AbstractPureSolver):
+            raise TypeError(
+                f"a batched solve needs a solver whose whole solve is a JAX function (extragradient), got "
+                f"{type(solver).__name__}, which leaves JAX at every iteration; solve the problems one at a time "
+                f"with solve()"
+            )
+        nlp = transcribe(system, self)
+        results = solver.solve_batch(nlp, data)
+        host = jax.device_get(data)  # slice on the host: per-problem device slicing dominated small batches
+        return [_solution(system, self, solver, nlp, res, jax.tree.map(lambda a, i=i: a[i], host))
+                for i, res in enumerate(results)]
+
+
+@functools.lru_cache(maxsize=256)
+def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
+    """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object."""
+    return transcription.transcribe(system)
+
+
+@functools.lru_cache(maxsize=256)
+def _unravel(nlp: NLP):
+    # Jitted once per NLP: an eager unravel would re-trace its scan (a fresh closure) on every solve.
+    return jax.jit(nlp.unravel)
+
+
+def _solution(system: System, transcription: AbstractTranscription, solver, nlp: NLP, res, data) -> Solution:
+    """A Solution from an NLP result: the trajectory on the transcription's grid and the discretised defect."""
+    times, states, controls = (np.asarray(a) for a in _unravel(nlp)(jnp.asarray(res.z), data))
+    defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
+    return Solution(
+        system=system.name, transcription=transcription.label, solver=solver.label,
+        integrator=transcription.quadrature, times=times, states=states, controls=controls,
+        cost=float(res.objective), defect=[float(d) for d in defect], converged=bool(res.success),
+        status=res.status, solver_code=int(res.solver_code), message=res.message, iterations=int(res.iterations),
+        constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
+        solve_seconds=float(res.solve_seconds),
+    )

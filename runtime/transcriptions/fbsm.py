@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any, NamedTuple
+import time
+from typing import Any, ClassVar, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -14,7 +15,11 @@ from jax.scipy.sparse.linalg import gmres
 
 from ..integrators import RK4, rollout, rollout_with_cost
 from ..system import OptimalControlUnavailable, System
-from ._common import control_scale, default_data, final_value_rows, guess_controls, state_scale
+from ..data import ProblemData, default_data
+from ..method import AbstractMethod
+from ..solution import Solution
+from ..status import Status
+from ._common import control_scale, final_value_rows, guess_controls, state_scale
 
 __all__ = ["ForwardBackwardSweep", "SweepResult", "SweepState"]
 
@@ -83,7 +88,7 @@ class SweepResult:
 
 
 @dataclasses.dataclass(frozen=True)
-class ForwardBackwardSweep:
+class ForwardBackwardSweep(AbstractMethod):
     """The forward-backward sweep method (FBSM) on a uniform grid of N intervals.
 
     Pontryagin's conditions in minimisation form, with H = L + lambda . f:
@@ -170,6 +175,9 @@ class ForwardBackwardSweep:
         Function Spaces*, SIAM, 2011 (Newton on u - P(u*(u)) = 0 with a projection P).
     """
 
+    label: ClassVar[str] = "fbsm"
+    quadrature: ClassVar[str] = "rk4"
+
     intervals: int = 1000
     relaxation: float = 0.5
     tol: float = 1e-10
@@ -195,7 +203,24 @@ class ForwardBackwardSweep:
         if not self.newton_switch > 0.0:
             raise ValueError(f"ForwardBackwardSweep: newton_switch must be positive, got {self.newton_switch}")
 
-    def run(self, system: System, data: dict) -> SweepState:
+    @classmethod
+    def on_grid(cls, intervals: int, **options) -> "ForwardBackwardSweep":
+        return cls(intervals=intervals, **options)
+
+    def solve_problem(self, system: System, solver: Any, data: ProblemData, z0: Any = None) -> Solution:
+        _refuse_solver(solver)
+        if z0 is not None:
+            raise ValueError("ForwardBackwardSweep: starts from the middle of the control bounds; it takes no z0")
+        t0 = time.perf_counter()
+        r = self.solve(system, data.params, data.x0)
+        jax.block_until_ready(r.states)
+        return _sweep_solution(system, r, time.perf_counter() - t0)
+
+    def solve_problems(self, system: System, solver: Any, data: ProblemData) -> list[Solution]:
+        _refuse_solver(solver)
+        raise NotImplementedError("ForwardBackwardSweep: batched solves are not available yet")
+
+    def run(self, system: System, data: ProblemData) -> SweepState:
         """The sweep as a pure, jitted function of ``data = {"params": ..., "x0": ...}`` (vmappable).
 
         Raises:
@@ -259,6 +284,25 @@ class ForwardBackwardSweep:
         )
 
 
+def _refuse_solver(solver: Any) -> None:
+    if solver is not None:
+        raise ValueError(f"ForwardBackwardSweep solves Pontryagin's conditions itself and takes no NLP solver, got "
+                         f"{type(solver).__name__}; pass solver=None, or a direct transcription to use the solver")
+
+
+def _sweep_solution(system: System, r: "SweepResult", seconds: float) -> Solution:
+    mask = system.final_mask
+    defect = [float(d) for d in np.asarray(r.defect)[mask]]
+    status = Status.CONVERGED if r.converged else Status.NOT_CONVERGED
+    return Solution(
+        system=system.name, transcription=ForwardBackwardSweep.label, solver="sweep",
+        integrator=ForwardBackwardSweep.quadrature, times=np.asarray(r.times), states=np.asarray(r.states),
+        controls=np.asarray(r.controls), cost=float(r.cost), defect=defect, converged=bool(r.converged),
+        status=status, message=r.message, iterations=int(r.iterations),
+        constraint_violation=max((abs(d) for d in defect), default=0.0), solve_seconds=seconds,
+    )
+
+
 def _check_available(system: System) -> None:
     if system.optimal_control_kind == "none":
         raise OptimalControlUnavailable(
@@ -269,7 +313,7 @@ def _check_available(system: System) -> None:
 
 @functools.partial(jax.jit, static_argnums=(0, 1))
 def _run(cfg: ForwardBackwardSweep, system: System, data: dict) -> SweepState:
-    params, x0 = data["params"], jnp.asarray(data["x0"])
+    params, x0 = data.params, jnp.asarray(data.x0)
     N, n, m = cfg.intervals, system.n_states, system.n_controls
     T = float(system.horizon)
     h = T / N

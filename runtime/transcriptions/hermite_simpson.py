@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -28,7 +29,7 @@ __all__ = ["HermiteSimpson"]
 class HermiteSimpson(AbstractTranscription):
     """Hermite-Simpson collocation on a uniform grid of N intervals (order 4), in compressed form.
 
-    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h (x_0 = data["x0"]), and a control
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h (x_0 = data.x0), and a control
     u_{k+1/2} at each interval midpoint. The midpoint state is *not* a decision: it is the cubic Hermite
     interpolant of the two nodes,
 
@@ -57,7 +58,14 @@ class HermiteSimpson(AbstractTranscription):
         SIAM Review 59(4), 2017.
     """
 
+    label: ClassVar[str] = "hermite_simpson"
+    quadrature: ClassVar[str] = "simpson"
+
     intervals: int = 50
+
+    @classmethod
+    def on_grid(cls, intervals: int, **options) -> "HermiteSimpson":
+        return cls(intervals=intervals, **options)
 
     def __post_init__(self):
         if self.intervals < 1:
@@ -77,11 +85,11 @@ class HermiteSimpson(AbstractTranscription):
 
         def split(z, data):
             X = jnp.reshape(z[:nX], (N, n))
-            xs = jnp.concatenate([jnp.asarray(data["x0"])[None], X], axis=0)
+            xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
             return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), jnp.reshape(z[nX + nU :], (N, m))
 
         def collocate(z, data):
-            params = data["params"]
+            params = data.params
             f = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))
             xs, us, ums = split(z, data)
             fs = f(xs, us, jnp.asarray(times))
@@ -89,7 +97,7 @@ class HermiteSimpson(AbstractTranscription):
             return xs, us, ums, xms, fs, f(xms, ums, jnp.asarray(mid_times))
 
         def objective(z, data):
-            params = data["params"]
+            params = data.params
             L = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))
             xs, us, ums, xms, _, _ = collocate(z, data)
             Ls = L(xs, us, jnp.asarray(times))
@@ -112,7 +120,7 @@ class HermiteSimpson(AbstractTranscription):
             return jnp.asarray(np.linspace(0.0, T, 2 * N + 1)), interleave(xs, xms), interleave(us, ums)
 
         def initial_guess(data):
-            X = guess_states(system, data["x0"], times[1:])
+            X = guess_states(system, data.x0, times[1:])
             U = guess_controls(system, 2 * N + 1)
             return jnp.concatenate([X.ravel(), jnp.asarray(U[: N + 1].ravel()), jnp.asarray(U[N + 1 :].ravel())])
 

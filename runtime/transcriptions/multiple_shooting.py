@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -29,7 +30,7 @@ __all__ = ["MultipleShooting"]
 class MultipleShooting(AbstractTranscription):
     """Direct multiple shooting with M intervals of S integrator steps each (N = M S steps in all).
 
-    Decision: the states X_1..X_M at the shooting nodes t_j = j T / M (X_0 = data["x0"] is not a decision) and the
+    Decision: the states X_1..X_M at the shooting nodes t_j = j T / M (X_0 = data.x0 is not a decision) and the
     controls u_0..u_N at *every* step node t_k = k T / N, linearly interpolated in between, so the control
     parametrisation is the same as single shooting with N intervals and the two have the same optimum when they
     share an integrator. On interval j the integrator runs S steps from X_j, giving x_end,j, and
@@ -48,9 +49,33 @@ class MultipleShooting(AbstractTranscription):
         integrator: the one-step method.
     """
 
+    label: ClassVar[str] = "multiple_shooting"
+
     intervals: int = 20
     steps_per_interval: int = 5
     integrator: AbstractIntegrator = RK4()
+
+    @classmethod
+    def on_grid(cls, intervals: int, **options) -> "MultipleShooting":
+        """``intervals`` = N control intervals, cut into shooting intervals of ``steps_per_interval`` steps each.
+
+        Without ``steps_per_interval``, the default 5 steps per shooting interval (the largest of 5, 4, 3, 2, 1 that
+        divides N), so ``on_grid(100)`` is 20 shooting intervals of 5 steps: the same control grid as
+        ``SingleShooting(controls=100)``.
+        """
+        if intervals < 1:
+            raise ValueError(f"MultipleShooting: the control grid needs at least 1 interval, got {intervals}")
+        steps = options.pop("steps_per_interval", None)
+        if steps is None:
+            steps = next(s for s in (5, 4, 3, 2, 1) if intervals % s == 0)
+        if intervals % steps:
+            raise ValueError(f"MultipleShooting: {intervals} control intervals cannot be cut into shooting intervals "
+                             f"of {steps} steps; choose a multiple of {steps}")
+        return cls(intervals=intervals // steps, steps_per_interval=steps, **options)
+
+    @property
+    def quadrature(self) -> str:
+        return self.integrator.label
 
     def __post_init__(self):
         if self.intervals < 1 or self.steps_per_interval < 1:
@@ -84,14 +109,14 @@ class MultipleShooting(AbstractTranscription):
 
         def starts_and_windows(z, data):
             X, U = split(z)
-            starts = jnp.concatenate([jnp.asarray(data["x0"])[None], X[:-1]], axis=0)
+            starts = jnp.concatenate([jnp.asarray(data.x0)[None], X[:-1]], axis=0)
             return X, U, starts, U[window]
 
         def constraint_rows(X, ends):
             return jnp.concatenate([((ends - X) / sx).ravel(), X[-1, fixed] - final])
 
         def objective_and_constraints(z, data):
-            params = data["params"]
+            params = data.params
             f, L = fields(params)
             X, _, starts, Uw = starts_and_windows(z, data)
             shoot = lambda x, t, u: rollout_with_cost(integrator, f, L, x, t, h, u)  # noqa: E731
@@ -103,13 +128,13 @@ class MultipleShooting(AbstractTranscription):
 
         def constraints(z, data):
             # Without the cost state: the cheaper rollout when only the rows are wanted.
-            f, _ = fields(data["params"])
+            f, _ = fields(data.params)
             X, _, starts, Uw = starts_and_windows(z, data)
             shoot = lambda x, t, u: rollout(integrator, f, x, t, h, u)[-1]  # noqa: E731
             return constraint_rows(X, jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw))
 
         def unravel(z, data):
-            f, _ = fields(data["params"])
+            f, _ = fields(data.params)
             X, U, starts, Uw = starts_and_windows(z, data)
             shoot = lambda x, t, u: rollout(integrator, f, x, t, h, u)  # noqa: E731
             xs = jax.vmap(shoot)(starts, jnp.asarray(node_times[:-1]), Uw)  # (M, S+1, n)
@@ -119,7 +144,7 @@ class MultipleShooting(AbstractTranscription):
             return jnp.asarray(times), states, U
 
         def initial_guess(data):
-            X = guess_states(system, data["x0"], node_times[1:])
+            X = guess_states(system, data.x0, node_times[1:])
             return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel())])
 
         blocks = []

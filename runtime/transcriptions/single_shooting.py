@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax.numpy as jnp
 import numpy as np
@@ -21,7 +22,7 @@ class SingleShooting(AbstractTranscription):
     """Direct single shooting on a uniform grid of N control intervals (the published setting by default).
 
     Decision: the controls u_0..u_N at the N + 1 nodes t_k = k T / N, linearly interpolated in between. The states
-    are the rollout x_{k+1} = Phi_h(x_k, u_k, u_{k+1}) of ``integrator`` from x_0 = data["x0"], and
+    are the rollout x_{k+1} = Phi_h(x_k, u_k, u_{k+1}) of ``integrator`` from x_0 = data.x0, and
 
         minimise    phi(x_N) + C_N,        C = int L dt integrated as an extra state by the same integrator
         subject to  x_N,i = x_final,i              for every state with a required final value,
@@ -47,10 +48,20 @@ class SingleShooting(AbstractTranscription):
             systems.
     """
 
+    label: ClassVar[str] = "single_shooting"
+
     controls: int = 100
     integrator: AbstractIntegrator = Heun()
     enforce_final_state_bounds: bool = True
     checkpoint: bool = True
+
+    @classmethod
+    def on_grid(cls, intervals: int, **options) -> "SingleShooting":
+        return cls(controls=intervals, **options)
+
+    @property
+    def quadrature(self) -> str:
+        return self.integrator.label
 
     def __post_init__(self):
         if self.controls < 1:
@@ -79,9 +90,9 @@ class SingleShooting(AbstractTranscription):
             return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
 
         def objective_and_constraints(z, data):
-            params = data["params"]
+            params = data.params
             f, L = fields(params)
-            xs, cost = rollout_with_cost(integrator, f, L, data["x0"], 0.0, h, controls_of(z), self.checkpoint)
+            xs, cost = rollout_with_cost(integrator, f, L, data.x0, 0.0, h, controls_of(z), self.checkpoint)
             return cost[-1] + system.terminal_cost(xs[-1], T, params), final_rows(xs[-1])
 
         def objective(z, data):
@@ -89,13 +100,13 @@ class SingleShooting(AbstractTranscription):
 
         def constraints(z, data):
             # Without the cost state: the cheaper rollout when only the rows are wanted.
-            f, _ = fields(data["params"])
-            return final_rows(rollout(integrator, f, data["x0"], 0.0, h, controls_of(z), self.checkpoint)[-1])
+            f, _ = fields(data.params)
+            return final_rows(rollout(integrator, f, data.x0, 0.0, h, controls_of(z), self.checkpoint)[-1])
 
         def unravel(z, data):
-            f, _ = fields(data["params"])
+            f, _ = fields(data.params)
             us = controls_of(z)
-            return jnp.asarray(times), rollout(integrator, f, data["x0"], 0.0, h, us), us
+            return jnp.asarray(times), rollout(integrator, f, data.x0, 0.0, h, us), us
 
         def initial_guess(data):
             del data

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -28,7 +29,7 @@ __all__ = ["Trapezoidal"]
 class Trapezoidal(AbstractTranscription):
     """Trapezoidal collocation on a uniform grid of N intervals (order 2).
 
-    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h, h = T / N (x_0 = data["x0"]). With
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h, h = T / N (x_0 = data.x0). With
     f_k = f(x_k, u_k, t_k) and L_k = L(x_k, u_k, t_k):
 
         minimise    phi(x_N) + (h / 2) sum_k (L_k + L_{k+1})
@@ -42,7 +43,14 @@ class Trapezoidal(AbstractTranscription):
         intervals: N.
     """
 
+    label: ClassVar[str] = "trapezoidal"
+    quadrature: ClassVar[str] = "trapezoidal"
+
     intervals: int = 100
+
+    @classmethod
+    def on_grid(cls, intervals: int, **options) -> "Trapezoidal":
+        return cls(intervals=intervals, **options)
 
     def __post_init__(self):
         if self.intervals < 1:
@@ -61,17 +69,17 @@ class Trapezoidal(AbstractTranscription):
 
         def nodes(z, data):
             X = jnp.reshape(z[:nX], (N, n))
-            xs = jnp.concatenate([jnp.asarray(data["x0"])[None], X], axis=0)
+            xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
             return xs, jnp.reshape(z[nX:], (N + 1, m))
 
         def objective(z, data):
-            params = data["params"]
+            params = data.params
             xs, us = nodes(z, data)
             Ls = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))(xs, us, jnp.asarray(times))
             return 0.5 * h * jnp.sum(Ls[:-1] + Ls[1:]) + system.terminal_cost(xs[-1], T, params)
 
         def constraints(z, data):
-            params = data["params"]
+            params = data.params
             xs, us = nodes(z, data)
             fs = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))(xs, us, jnp.asarray(times))
             defects = (xs[1:] - xs[:-1] - 0.5 * h * (fs[:-1] + fs[1:])) / sx
@@ -82,7 +90,7 @@ class Trapezoidal(AbstractTranscription):
             return jnp.asarray(times), xs, us
 
         def initial_guess(data):
-            X = guess_states(system, data["x0"], times[1:])
+            X = guess_states(system, data.x0, times[1:])
             return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel())])
 
         blocks = []

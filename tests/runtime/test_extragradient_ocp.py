@@ -69,7 +69,7 @@ def test_epidemic_from_a_simulated_start(scaling, converges):
     system, nlp, data, _ = reference("epidemic")
     k = 201
     times, controls = np.linspace(0.0, system.horizon, k), guess_controls(system, k)
-    states = np.asarray(simulate(system, controls, data["params"], data["x0"], integrator=Adaptive()).states)
+    states = np.asarray(simulate(system, controls, data.params, data.x0, integrator=Adaptive()).states)
     interp = lambda values: lambda t: np.stack([np.interp(t, times, col) for col in values.T], axis=1)  # noqa: E731
     z0 = np.clip(TRANSCRIPTION.sample(system, interp(states), interp(controls)), nlp.z_lower, nlp.z_upper)
     result = Extragradient(scaling=scaling).solve(nlp, data, z0)

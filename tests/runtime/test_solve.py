@@ -173,4 +173,4 @@ def test_a_parameter_baked_into_final_values_and_bounds_cannot_be_overridden():
     assert load("van_der_pol").structural_params == ()
     # The spec's own value is accepted (nothing would be lost).
     data = default_data(load("predator_prey"), {"B": 5.0, "d1": 0.2})
-    assert float(data["params"]["d1"]) == 0.2
+    assert float(data.params["d1"]) == 0.2

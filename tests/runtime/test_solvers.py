@@ -23,6 +23,7 @@ import myriad.runtime.solvers as solvers_pkg
 from myriad.runtime.nlp import NLP
 from myriad.runtime.solvers import SLSQP, SOLVERS, AbstractNLPSolver, Extragradient, Ipopt, constraint_violation
 from myriad.runtime.solvers.ipopt import judge
+from myriad.runtime.status import Status
 from myriad.runtime.solvers.sparse import HessianColouring, compressed_jacobian_fn, hvp_batch_fn
 
 INF = np.inf
@@ -314,7 +315,8 @@ def test_infeasible_problem_is_not_a_success(solver_name):
 def test_ipopt_iteration_limit_is_a_failure():
     result = Ipopt(max_iter=2).solve(CASES["hs71"].nlp, NO_DATA)
     assert not result.success
-    assert result.status == -1  # Maximum_Iterations_Exceeded
+    assert result.solver_code == -1  # Maximum_Iterations_Exceeded
+    assert result.status is Status.ITERATION_LIMIT
 
 
 def test_ipopt_status_mapping():

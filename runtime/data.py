@@ -1,0 +1,115 @@
+"""Problem data: what may change between solves without recompiling (the parameters and the initial state).
+
+Every NLP function, rollout and pure solve takes a :class:`ProblemData`. Its ``params`` may be any pytree: the
+spec's ``dict[str, Array]`` by default, or a learned model's nested parameters (a network inside); only the
+leaves' shapes are static, so new values reuse compiled code and a batch of problems is one ``jax.vmap``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .system import System
+
+__all__ = ["ProblemData", "default_data", "batch_data", "check_structural_params"]
+
+
+class ProblemData(NamedTuple):
+    """The data of one problem (a pytree; under ``vmap`` every leaf gains a leading batch axis).
+
+    Attributes:
+        params: the parameters, any pytree (a ``dict[str, Array]`` for a compiled system).
+        x0: the initial state, shape (n_states,).
+    """
+
+    params: Any
+    x0: Any
+
+
+def _dtype():
+    # Every leaf gets the same concrete (not weakly typed) float dtype, whatever the caller passed: a Python float
+    # and a float64 array trace differently, and a jitted NLP function would silently recompile for new data.
+    return jax.dtypes.canonicalize_dtype(np.float64)
+
+
+def default_data(system: System, params: dict | None = None, x0: Any = None) -> ProblemData:
+    """The system's problem data, with some parameters and/or the initial state replaced.
+
+    Args:
+        system: the system.
+        params: parameter values; missing names take the spec's defaults.
+        x0: the initial state; defaults to ``system.x0``.
+
+    Raises:
+        KeyError: a parameter the system does not have.
+        ValueError: a new value for a structural parameter (see :func:`check_structural_params`).
+    """
+    dtype = _dtype()
+    p = system.default_params(dtype)
+    if params is not None:
+        _check_names(system, params, p)
+        check_structural_params(system, params)
+        p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
+    x0 = system.x0 if x0 is None else x0
+    return ProblemData(params=p, x0=jnp.asarray(x0, dtype=dtype))
+
+
+def batch_data(system: System, params: dict | None = None, x0: Any = None) -> ProblemData:
+    """A batch of problem data with a leading batch axis on every leaf.
+
+    Args:
+        system: the system.
+        params: arrays of shape (B,) per parameter; names not given keep the spec's value.
+        x0: (B, n_states) initial states, or None for the spec's.
+
+    Raises:
+        ValueError: no batch axis, or batch sizes that differ between the arguments.
+    """
+    params = params or {}
+    sizes = {int(np.shape(v)[0]) if np.ndim(v) else -1 for v in params.values()}
+    if x0 is not None:
+        sizes.add(int(np.shape(x0)[0]) if np.ndim(x0) > 1 else -1)
+    if -1 in sizes:
+        raise ValueError("a batch needs a leading batch axis on every parameter given and a (B, n_states) x0")
+    if len(sizes) != 1:
+        raise ValueError(f"a batch needs one batch size across params and x0, got {sorted(sizes) or 'none'}")
+    (batch,) = sizes
+    dtype = _dtype()
+    base = default_data(system)
+    _check_names(system, params, base.params)
+    check_structural_params(system, params)
+    p = {k: jnp.broadcast_to(v, (batch,)) for k, v in base.params.items()}
+    p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
+    xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, dtype)
+    return ProblemData(params=p, x0=xs)
+
+
+def _check_names(system: System, given: dict, known: dict) -> None:
+    unknown = set(given) - set(known)
+    if unknown:
+        raise KeyError(f"{system.name}: unknown parameters {sorted(unknown)}; expected some of {list(known)}")
+
+
+def check_structural_params(system: System, params: dict) -> None:
+    """Refuse a new value for a parameter that the spec's initial values, bounds, final values or horizon use.
+
+    Those fields are compiled as numbers at the spec's parameter values, so solving with another value would
+    silently keep, e.g., Predator-Prey's required z(T) = B at 5 while ``B`` says 4. Traced values (inside a
+    transformation) cannot be compared and pass.
+    """
+    for name in system.structural_params:
+        if name not in params or isinstance(params[name], jax.core.Tracer):
+            continue
+        default = system.param_values[system.param_names.index(name)]
+        value = np.asarray(params[name], dtype=np.float64)
+        if not np.all(value == default):
+            raise ValueError(
+                f"{system.name}: parameter `{name}` = {value.ravel()[0] if value.size == 1 else value} differs from "
+                f"the spec's {default:g}, but the spec's initial values, bounds, final values or horizon use `{name}`, "
+                f"and those are compiled as numbers at {name} = {default:g}; they would not follow. Copy the spec "
+                f"with the new value of `{name}` and load that file instead"
+            )

@@ -1,0 +1,132 @@
+r"""The pure-JAX solver tier: solvers whose whole solve is one JAX function of the problem data.
+
+A pure solver turns a problem (an :class:`~myriad.runtime.nlp.NLP`, or a system for an indirect method) into
+
+    solve_fn(problem): (data, z0) -> output          (jit-compiled; pure; vmap-able over data and z0)
+
+and this base writes the rest once: a single solve that measures compile and solve time apart, and
+:meth:`AbstractPureSolver.solve_batch`, one ``jax.vmap`` of the same function over a batch of ``data``.
+This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
+
+Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
+the loop; reverse mode does not: ``jax.grad`` of a function of a pure solve raises JAX's ``ValueError`` ("Reverse-mode
+differentiation does not work for lax.while_loop ..."), never a silent zero (``tests/runtime/test_pure_solvers.py``
+checks it). Gradients of a solution with respect to ``data`` need an implicit-function rule (a ``custom_vjp`` on the
+optimality conditions) or unrolling a fixed number of steps; neither is provided yet.
+"""
+
+from __future__ import annotations
+
+import abc
+import time
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from .base import CompiledFunction, cached, canonical_data
+
+__all__ = ["AbstractPureSolver"]
+
+
+class _Programs:
+    """The jitted solve of one (problem, solver) pair: for callers, for one member, and vmapped for a batch."""
+
+    def __init__(self, raw: Callable[[Any, Any], Any]):
+        self.jitted = jax.jit(raw)
+        self.single = CompiledFunction(raw)
+        self.batched = CompiledFunction(jax.vmap(raw))
+
+
+class AbstractPureSolver(abc.ABC):
+    """A solver whose solve is a pure JAX function ``(data, z0) -> output`` of a problem.
+
+    Subclasses provide the function (:meth:`pure_solve`), the default start (:meth:`start`) and the host-side
+    report of one member's output (:meth:`report`); this base provides :meth:`solve_fn` and :meth:`solve_batch`
+    (and ``_solve_single`` for the subclass's own ``solve``). Concrete pure solvers are frozen dataclasses, so the
+    compiled programs are cached per problem and solver configuration.
+    """
+
+    @abc.abstractmethod
+    def pure_solve(self, problem: Any) -> Callable[[Any, Any], Any]:
+        """The un-jitted pure solve ``(data, z0) -> output`` for ``problem`` (built once; this base jits it).
+
+        It must not hold a reference to ``problem`` when ``problem`` is an NLP (the cache is keyed weakly by it)."""
+
+    @abc.abstractmethod
+    def start(self, problem: Any, data: Any, z0: Any = None) -> np.ndarray:
+        """``z0`` checked and as a float64 host array, or the default start for one member's ``data`` when None.
+
+        Raises:
+            ValueError: ``z0`` of the wrong shape.
+        """
+
+    @abc.abstractmethod
+    def report(self, problem: Any, output: Any, data: Any, compile_seconds: float, solve_seconds: float) -> Any:
+        """One member's output (host arrays) as the solver's result object."""
+
+    def prepare_report(self, problem: Any, z0: np.ndarray, data: Any) -> float:
+        """Compile what :meth:`report` evaluates; returns the seconds spent (0 when nothing is compiled)."""
+        return 0.0
+
+    # ---- written once ------------------------------------------------------------------------------------------
+
+    def solve_fn(self, problem: Any) -> Callable[[Any, Any], Any]:
+        """The jit-compiled pure solve ``(data, z0) -> output`` (cached per problem and solver).
+
+        It can be ``vmap``-ed over ``data`` and ``z0``, called inside other jitted code, and differentiated in forward
+        mode; reverse mode raises (see the module docstring)."""
+        return self._programs(problem).jitted
+
+    def solve_batch(self, problem: Any, batched_data: Any, z0: Any = None) -> list:
+        """Solve ``problem`` for a batch of ``data`` (every leaf with a leading batch axis) as one vmapped program.
+
+        The loop runs until every member has stopped; members that stop early are frozen by ``vmap``'s select, so
+        each result equals its single solve, and each has its own status.
+
+        Args:
+            problem: the problem (NLP, or system for an indirect method).
+            batched_data: ``data`` with a leading batch axis of size ``B`` on every leaf.
+            z0: None (each member's default start), one start for all, or one per member (leading axis ``B``).
+
+        Returns:
+            ``B`` results, one per member. Their ``compile_seconds`` and ``solve_seconds`` are the batch's totals
+            divided by ``B`` (so that sums over the list are the batch's totals).
+        """
+        programs = self._programs(problem)
+        batched_data = canonical_data(batched_data)
+        sizes = {np.shape(x)[0] if np.ndim(x) else None for x in jax.tree.leaves(batched_data)}
+        if len(sizes) != 1 or None in sizes:
+            raise ValueError(f"solve_batch: every leaf of batched_data needs the same leading axis, got {sizes}")
+        (batch,) = sizes
+        host = jax.device_get(batched_data)  # slice on the host: per-member device slicing dominated small batches
+        members = [jax.tree.map(lambda x, i=i: x[i], host) for i in range(batch)]
+        if z0 is None:
+            z0 = np.stack([self.start(problem, d) for d in members])
+        z0 = np.asarray(z0, dtype=np.float64)
+        one = np.asarray(self.start(problem, members[0])).shape
+        z0 = np.broadcast_to(z0, (batch, *one)).copy()
+
+        compile_seconds = programs.batched.compile(batched_data, z0) + self.prepare_report(problem, z0[0], members[0])
+        start = time.perf_counter()
+        out = jax.device_get(jax.block_until_ready(programs.batched(batched_data, z0)))
+        solve_seconds = time.perf_counter() - start
+        return [
+            self.report(problem, jax.tree.map(lambda x, i=i: x[i], out), members[i], compile_seconds / batch,
+                        solve_seconds / batch)
+            for i in range(batch)
+        ]
+
+    def _solve_single(self, problem: Any, data: Any, z0: Any = None) -> Any:
+        """One solve with its compile time measured apart; the subclass's ``solve`` calls this."""
+        programs = self._programs(problem)
+        data = canonical_data(data)
+        z0 = self.start(problem, data, z0)
+        compile_seconds = programs.single.compile(data, z0) + self.prepare_report(problem, z0, data)
+        start = time.perf_counter()
+        out = jax.block_until_ready(programs.single(data, z0))
+        solve_seconds = time.perf_counter() - start
+        return self.report(problem, out, data, compile_seconds, solve_seconds)
+
+    def _programs(self, problem: Any) -> _Programs:
+        return cached(problem, ("pure", self), lambda: _Programs(self.pure_solve(problem)))
