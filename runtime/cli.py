@@ -21,18 +21,33 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+def _methods() -> dict:
+    from .transcriptions import INDIRECT, TRANSCRIPTIONS
+
+    return {**TRANSCRIPTIONS, **INDIRECT}
+
+
 def _parser():
+    # The choices come from the registries: a new transcription, solver or integrator appears here by itself.
+    from .integrators import INTEGRATORS
+    from .solvers import SOLVERS
+
+    methods = _methods()
+    shooting = [name for name, cls in methods.items() if _takes_integrator(cls)]
     p = _Parser(prog="myriad", description="Trajectory optimisation on myriad systems.")
     p.add_argument("-v", "--verbose", action="store_true", help="tracebacks on internal errors")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     s = sub.add_parser("solve", help="solve one system")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--transcription", default="single_shooting",
-                   choices=["single_shooting", "multiple_shooting", "trapezoidal", "hermite_simpson", "fbsm"])
-    s.add_argument("--solver", default="ipopt", choices=["ipopt", "slsqp", "extragradient"])
-    s.add_argument("--integrator", default=None, choices=["euler", "heun", "midpoint", "rk4"],
-                   help="for the shooting transcriptions (default: heun for single, rk4 for multiple shooting)")
-    s.add_argument("--controls", type=int, default=None, metavar="N", help="control intervals (grid size)")
+    s.add_argument("--transcription", default="single_shooting", choices=list(methods),
+                   help="the method (default: single_shooting, the published setting)")
+    s.add_argument("--solver", default=None, choices=list(SOLVERS),
+                   help="the NLP solver of a direct transcription (default: ipopt); indirect methods take none")
+    s.add_argument("--integrator", default=None, choices=[n for n, c in INTEGRATORS.items() if c.fixed_step],
+                   help=f"for {', '.join(shooting)} (default: each one's own)")
+    s.add_argument("--intervals", "--controls", dest="intervals", type=int, default=None, metavar="N",
+                   help="the control grid: N uniform intervals (N + 1 control nodes), the same grid for every method "
+                        "(multiple shooting groups them into shooting intervals of 5 steps); default: each method's own")
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
@@ -44,6 +59,12 @@ def _parser():
     return p
 
 
+def _takes_integrator(cls) -> bool:
+    import dataclasses
+
+    return any(f.name == "integrator" for f in dataclasses.fields(cls))
+
+
 def _configure_jax():
     import jax
 
@@ -51,20 +72,26 @@ def _configure_jax():
 
 
 def _transcription(args):
+    """The method object from the arguments, or a usage error (exit 2) before any work starts."""
     from .integrators import INTEGRATORS
-    from .transcriptions import INDIRECT, TRANSCRIPTIONS
+    from .transcriptions import INDIRECT
 
+    cls = _methods()[args.transcription]
     kwargs = {}
     if args.integrator:
-        if args.transcription not in ("single_shooting", "multiple_shooting"):
+        if not _takes_integrator(cls):
             raise SystemExit(_usage(f"--integrator applies to the shooting transcriptions, not {args.transcription}"))
         kwargs["integrator"] = INTEGRATORS[args.integrator]()
-    if args.controls is not None:
-        if args.controls < 1:
-            raise SystemExit(_usage("--controls must be at least 1"))
-        kwargs["controls" if args.transcription == "single_shooting" else "intervals"] = args.controls
-    cls = TRANSCRIPTIONS.get(args.transcription) or INDIRECT[args.transcription]
-    return cls(**kwargs)
+    if args.solver and args.transcription in INDIRECT:
+        raise SystemExit(_usage(f"{args.transcription} solves Pontryagin's conditions itself and takes no --solver"))
+    if args.intervals is None:
+        return cls(**kwargs)
+    if args.intervals < 1:
+        raise SystemExit(_usage("--intervals must be at least 1"))
+    try:
+        return cls.on_grid(args.intervals, **kwargs)
+    except ValueError as exc:
+        raise SystemExit(_usage(str(exc))) from None
 
 
 def _usage(message):
@@ -77,11 +104,16 @@ def _cmd_solve(args) -> int:
     from . import load, solve
     from .solvers import SOLVERS
 
+    try:
+        method = _transcription(args)
+    except SystemExit as usage:  # checked before the system is even loaded
+        return int(usage.code)
     system = load(args.system)
-    sol = solve(system, _transcription(args), SOLVERS[args.solver]())
+    sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None)
     state = "converged" if sol.converged else "NOT CONVERGED"
     print(f"{system.name}: {sol.transcription} + {sol.solver} ({sol.integrator}): {state} after {sol.iterations} "
           f"iterations ({sol.message})")
+    print(f"  status {sol.status} (solver code {sol.solver_code}); grid {sol.controls.shape[0] - 1} control intervals")
     print(f"  cost {sol.cost:.8g}   defect {[f'{d:.2e}' for d in sol.defect] or 'none required'}   "
           f"constraint violation {sol.constraint_violation:.2e}")
     print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "

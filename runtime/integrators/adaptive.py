@@ -43,6 +43,7 @@ class Adaptive(AbstractIntegrator):
     """
 
     label: ClassVar[str] = "adaptive"
+    fixed_step: ClassVar[bool] = False
     order: ClassVar[int] = 5
 
     method: str = "tsit5"

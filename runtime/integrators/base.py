@@ -29,10 +29,13 @@ class AbstractIntegrator(abc.ABC):
     Attributes:
         label: the registry name (``"heun"``), used by the CLI and in reports.
         order: the global order of accuracy p (error O(h^p)) for smooth f and smooth controls.
+        fixed_step: whether a transcription may use it (one step per grid interval, no step control).
     """
 
     label: ClassVar[str]
     order: ClassVar[int]
+    # False for an integrator that adapts its own steps (simulation only): the transcriptions need fixed steps.
+    fixed_step: ClassVar[bool] = True
 
     @abc.abstractmethod
     def step(self, f: Dynamics, x: Any, t: Any, h: Any, u0: Any, u1: Any) -> Any:
