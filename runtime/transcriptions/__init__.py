@@ -1,15 +1,19 @@
-"""Transcriptions (optimal-control problem -> NLP) and the indirect forward-backward sweep.
+"""Transcriptions (optimal-control problem -> NLP); the indirect forward-backward sweep lives in ``runtime/indirect``
+and is re-exported here.
 
 Look one up by name with ``TRANSCRIPTIONS["hermite_simpson"](intervals=50)``; see README.md in this folder to add one.
 """
 
 from ..data import default_data as default_data
+
+# The sweep lives in runtime/indirect; re-exported (with its registry) so that old imports keep working.
+from ..indirect import INDIRECT as INDIRECT
+from ..indirect import ForwardBackwardSweep as ForwardBackwardSweep
+from ..indirect import SweepResult as SweepResult
+from ..indirect import SweepState as SweepState
 from ._common import control_scale as control_scale
 from ._common import state_scale as state_scale
 from .base import AbstractTranscription as AbstractTranscription
-from .fbsm import ForwardBackwardSweep as ForwardBackwardSweep
-from .fbsm import SweepResult as SweepResult
-from .fbsm import SweepState as SweepState
 from .hermite_simpson import HermiteSimpson as HermiteSimpson
 from .multiple_shooting import MultipleShooting as MultipleShooting
 from .single_shooting import SingleShooting as SingleShooting
@@ -21,11 +25,6 @@ TRANSCRIPTIONS: dict[str, type[AbstractTranscription]] = {
     "multiple_shooting": MultipleShooting,
     "trapezoidal": Trapezoidal,
     "hermite_simpson": HermiteSimpson,
-}
-
-# Indirect methods solve the optimality conditions themselves (``solve(system, params, x0)``) and produce no NLP.
-INDIRECT: dict[str, type] = {
-    "fbsm": ForwardBackwardSweep,
 }
 
 __all__ = [

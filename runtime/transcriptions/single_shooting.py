@@ -40,12 +40,9 @@ class SingleShooting(AbstractTranscription):
         enforce_final_state_bounds: add the final-node state-bound rows.
         checkpoint: rematerialise the rollout's steps when differentiating (see ``rollout``). The derivative
             programs of a small system are bound by the number of XLA kernels per step, not by arithmetic: saving
-            only the state at each node and recomputing the step on the way back removes most of them. Measured on
-            the 18 systems (N = 100, Heun; 2 busy CPU cores): the dense Lagrangian Hessian 10-35 % faster on 16
-            (e.g. Harvest 513 -> 332 us, Cart-Pole 1496 -> 1323 us), the first-order program up to 2x faster; but
-            Rocket Landing's Hessian (six states, trigonometric thrust terms, n = 202) 2.9 -> 5.2 ms, where the
-            recomputation outweighs the saved kernels. Values are identical either way; turn it off for such
-            systems.
+            only the state at each node and recomputing the step on the way back removes most of them, which pays on
+            16 of the 18 systems; a system whose step is expensive (Rocket Landing) loses. Values are identical
+            either way. Measurements: docs/notes/single-shooting-checkpoint.md.
     """
 
     label: ClassVar[str] = "single_shooting"
