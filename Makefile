@@ -2,7 +2,7 @@
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test demo build check clean
+.PHONY: setup test demo build check lint clean
 
 setup:
 	@bash scripts/setup.sh
@@ -10,10 +10,14 @@ setup:
 build: setup
 	$(BIN)/myriadc build specs/
 
+lint: setup
+	$(BIN)/ruff check .
+
 check: setup
 	$(BIN)/myriadc build specs/ --check
 
 test: setup
+	$(BIN)/ruff check .
 	$(BIN)/myriadc build specs/ --check
 	$(BIN)/python -m pytest
 

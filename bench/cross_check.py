@@ -114,7 +114,7 @@ def resimulated_infeasibility(system, sol: Solution) -> tuple[float, str]:
         grid = np.linspace(0.0, system.horizon, 4 * times.shape[0])
         controls = np.stack([np.interp(grid, times, controls[:, j]) for j in range(controls.shape[1])], 1)
     data = default_data(system)
-    sim = simulate(system, controls, data["params"], data["x0"], integrator=Adaptive())
+    sim = simulate(system, controls, data.params, data.x0, integrator=Adaptive())
     xs = np.asarray(sim.states)
     arrays = system.arrays()
     scale = state_scale(system)
@@ -145,7 +145,7 @@ def part_a(names, log) -> list[dict]:
         for key, method in METHODS_A.items():
             t0 = time.perf_counter()
             try:
-                sol = solve(system, method, Ipopt())
+                sol = solve(system, method, Ipopt() if method.uses_solver else None)
             except OptimalControlUnavailable:
                 row["results"][key] = {"na": "no u*"}
                 row["notes"].append(f"sweep n/a: no u* ({system.optimal_control_note or 'not characterised'})")

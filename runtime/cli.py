@@ -74,7 +74,6 @@ def _configure_jax():
 def _transcription(args):
     """The method object from the arguments, or a usage error (exit 2) before any work starts."""
     from .integrators import INTEGRATORS
-    from .transcriptions import INDIRECT
 
     cls = _methods()[args.transcription]
     kwargs = {}
@@ -82,7 +81,7 @@ def _transcription(args):
         if not _takes_integrator(cls):
             raise SystemExit(_usage(f"--integrator applies to the shooting transcriptions, not {args.transcription}"))
         kwargs["integrator"] = INTEGRATORS[args.integrator]()
-    if args.solver and args.transcription in INDIRECT:
+    if args.solver and not cls.uses_solver:
         raise SystemExit(_usage(f"{args.transcription} solves Pontryagin's conditions itself and takes no --solver"))
     if args.intervals is None:
         return cls(**kwargs)

@@ -21,8 +21,8 @@ class AbstractMethod(abc.ABC):
 
     Class attributes:
         label: the registry name (``"hermite_simpson"``), used by the CLI, the bench and :class:`Solution`.
-        grid_option: the constructor argument that sets the grid (``"controls"`` or ``"intervals"``); the CLI never
-            uses it, it calls :meth:`on_grid`.
+        uses_solver: whether the method hands an NLP to a solver (a direct transcription) or solves by itself (an
+            indirect method, which refuses a solver).
 
     Every method also has a ``quadrature`` (an attribute or property): the label of the rule that integrates the
     dynamics and the cost (an integrator's label for shooting, ``"trapezoidal"``, ``"simpson"``).
@@ -30,6 +30,7 @@ class AbstractMethod(abc.ABC):
 
     label: ClassVar[str]
     quadrature: ClassVar[str]
+    uses_solver: ClassVar[bool] = True
 
     @classmethod
     @abc.abstractmethod

@@ -515,13 +515,3 @@ def test_invalid_options_say_what_is_allowed(make, fragment):
 def test_ipopt_rejects_unknown_options_by_name():
     with pytest.raises(ValueError, match="no_such_option"):
         Ipopt(options={"no_such_option": 1}).solve(CASES["disc"].nlp, CASES["disc"].data)
-
-
-def test_every_solver_is_registered():
-    concrete = {
-        obj
-        for module in (solvers_pkg.ipopt, solvers_pkg.slsqp, solvers_pkg.extragradient)
-        for obj in vars(module).values()
-        if inspect.isclass(obj) and issubclass(obj, AbstractNLPSolver) and not inspect.isabstract(obj)
-    }
-    assert concrete == set(SOLVERS.values())
