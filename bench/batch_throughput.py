@@ -108,14 +108,16 @@ def main(argv=None) -> int:
     wall_rate_b = args.batch / (wall_b - compile_b)
     wall_rate_s, wall_rate_i = subset / wall_s, subset / wall_i
     same = [abs(a.cost - b.cost) / max(abs(b.cost), 1e-12) for a, b in zip(seq, batch)]
-    vs_ipopt = [abs(a.cost - b.cost) / max(abs(b.cost), 1e-12) for a, b in zip(batch, ipo) if a.converged and b.converged]
+    vs_ipopt = [abs(a.cost - b.cost) / max(abs(b.cost), 1e-12)
+                for a, b in zip(batch, ipo) if a.converged and b.converged]
 
     print()
     print(f"{'':36s} {'problems/s':>11s} {'problems/s':>11s} {'solve s':>9s} {'compile s':>10s} {'converged':>12s}")
     print(f"{'':36s} {'(solve)':>11s} {'(wall)':>11s}")
     rows = [
         ("extragradient, solve_batch (vmap)", rate_b, wall_rate_b, solve_b, compile_b, conv_b, args.batch),
-        ("extragradient, one at a time", rate_s, wall_rate_s, solve_s, compile_s, sum(s.converged for s in seq), subset),
+        ("extragradient, one at a time", rate_s, wall_rate_s, solve_s, compile_s, sum(s.converged for s in seq),
+         subset),
         ("ipopt, one at a time", rate_i, wall_rate_i, solve_i, compile_i, sum(s.converged for s in ipo), subset),
     ]
     for label, r, w, t, c, k, n in rows:
@@ -126,7 +128,8 @@ def main(argv=None) -> int:
           f"{wall_rate_b / wall_rate_i:.2f}x)")
     print(f"one-at-a-time figures: {subset} of {args.batch} members, extrapolated: {args.batch} problems would take "
           f"{args.batch / rate_s:.3g} s (extragradient) and {args.batch / rate_i:.3g} s (IPOPT) of solve time; "
-          f"wall time per solve incl. Python overhead: {wall_s / subset * 1e3:.1f} ms and {wall_i / subset * 1e3:.1f} ms")
+          f"wall time per solve incl. Python overhead: {wall_s / subset * 1e3:.1f} ms and "
+          f"{wall_i / subset * 1e3:.1f} ms")
     print(f"solve_batch wall time {wall_b:.2f} s (incl. compile and per-member result assembly); extragradient "
           f"iterations per member: median {int(np.median(its_b))}, max {its_b.max()} (the vmapped loop runs max "
           f"iterations for all {args.batch})")

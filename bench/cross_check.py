@@ -228,7 +228,8 @@ def part_b(names, log) -> list[dict]:
             rec["wall_seconds"] = round(time.perf_counter() - t0, 3)
             row["results"][key] = rec
             log(f"  {name:17s} {key:14s} cost {_fmt(sol.cost):>12s}  {sol.iterations:6d} it  "
-                f"viol {sol.constraint_violation:.1e}  {'ok' if sol.converged else 'NOT CONVERGED (' + sol.message + ')'}"
+                f"viol {sol.constraint_violation:.1e}  "
+                f"{'ok' if sol.converged else 'NOT CONVERGED (' + sol.message + ')'}"
                 f"  compile {sol.compile_seconds:.2f} s  solve {sol.solve_seconds:.2f} s")
         ref = row["results"]["ipopt"]["cost"]
         row["rel_diff_to_ipopt"] = {k: (abs(r["cost"] - ref) / max(abs(ref), 1e-12) if r["cost"] is not None else None)

@@ -175,7 +175,9 @@ def build(paths, out_dir: str | os.PathLike | None = None, check: bool = False) 
         return result  # all or nothing: a bad spec leaves no output behind
 
     outputs = {out / f"{c.name}.py": c.text for c in compiled}
-    existing = {p.stem for p in out.glob("*.py") if p.name != "__init__.py" and _is_generated(p)} if out.is_dir() else set()
+    existing = (
+        {p.stem for p in out.glob("*.py") if p.name != "__init__.py" and _is_generated(p)} if out.is_dir() else set()
+    )
     outputs[out / "__init__.py"] = render.render_registry(sorted(existing | set(names)))
 
     if not check:

@@ -116,7 +116,8 @@ def check_problem(sym: SymbolicProblem) -> None:
         raise _error(spec, f"the terminal cost uses the control(s) {names}; it is a function of the final state "
                      "(and parameters) only: move control terms into `running`", spec.terminal.loc)
     exprs = [("dynamics." + s.name, e, s_eq.expr) for s, e, s_eq in
-             zip(spec.states, sym.dynamics, sorted(spec.dynamics, key=lambda q: [x.name for x in spec.states].index(q.name)))]
+             zip(spec.states, sym.dynamics,
+                 sorted(spec.dynamics, key=lambda q: [x.name for x in spec.states].index(q.name)))]
     exprs.append(("cost.running", sym.running, spec.running))
     if spec.terminal is not None:
         exprs.append(("cost.terminal", sym.terminal, spec.terminal))

@@ -150,9 +150,10 @@ def _cmd_show(args) -> int:
     print(f"{s.name}: {_clean(s.title)}  ({_clean(s.file)}, sha256 {s.sha256[:12]})")
     print(f"  {_clean(s.description)}")
     sym = c.symbolic
-    print("  states:   " + ", ".join(f"{n} in [{lo:g}, {hi:g}], x0 = {x0:g}" + (f", x(T) = {xf:g}" if xf is not None else "")
-                                     for n, lo, hi, x0, xf in zip((v.name for v in s.states), sym.x_lower, sym.x_upper,
-                                                                  sym.x0, sym.x_final)))
+    states = zip((v.name for v in s.states), sym.x_lower, sym.x_upper, sym.x0, sym.x_final)
+    print("  states:   " + ", ".join(f"{n} in [{lo:g}, {hi:g}], x0 = {x0:g}"
+                                     + (f", x(T) = {xf:g}" if xf is not None else "")
+                                     for n, lo, hi, x0, xf in states))
     print("  controls: " + ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, lo, hi in
                                      zip((v.name for v in s.controls), sym.u_lower, sym.u_upper)))
     print(f"  T = {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")

@@ -108,7 +108,9 @@ _BAD_BINOPS = {
     ast.BitAnd: "`&` is not supported; in a condition write `and`",
     ast.BitOr: "`|` is not supported; in a condition write `or`",
 }
-_COMPARE = {ast.Lt: sympy.Lt, ast.LtE: sympy.Le, ast.Gt: sympy.Gt, ast.GtE: sympy.Ge, ast.Eq: sympy.Eq, ast.NotEq: sympy.Ne}
+_COMPARE = {
+    ast.Lt: sympy.Lt, ast.LtE: sympy.Le, ast.Gt: sympy.Gt, ast.GtE: sympy.Ge, ast.Eq: sympy.Eq, ast.NotEq: sympy.Ne,
+}
 _NODE_NAMES = {
     ast.Attribute: "attribute access (`a.b`)", ast.Subscript: "indexing (`a[i]`)", ast.Lambda: "a lambda",
     ast.IfExp: "`a if c else b` (write `where(c, a, b)`)", ast.List: "a list", ast.Tuple: "a tuple",

@@ -183,7 +183,7 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         ("optimal_control_note", _lit(d.u_star_note)),
         ("reference", _lit(dict(spec.reference))),
     )
-    lam_names = {str(l): f"lam_{x}" for l, x in zip(d.lam, X)}
+    lam_names = {str(lam): f"lam_{x}" for lam, x in zip(d.lam, X)}
 
     def show(e):
         text = sympy.sstr(e)
@@ -193,9 +193,9 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
 
     summary = [(f"d{x}/dt", show(fi)) for x, fi in zip(X, d.f)]
     summary += [("L", show(d.L)), ("phi", show(d.phi)), ("H", show(d.H))]
-    summary += [(f"d{lam_names[str(l)]}/dt", show(c)) for l, c in zip(d.lam, d.costate)]
-    summary += [(f"{lam_names[str(l)]}(T)", show(c) if xf is None else f"free: {x}(T) = {xf:g} is required")
-                for l, c, x, xf in zip(d.lam, d.terminal_costate, X, sym.x_final)]
+    summary += [(f"d{lam_names[str(lam)]}/dt", show(c)) for lam, c in zip(d.lam, d.costate)]
+    summary += [(f"{lam_names[str(lam)]}(T)", show(c) if xf is None else f"free: {x}(T) = {xf:g} is required")
+                for lam, c, x, xf in zip(d.lam, d.terminal_costate, X, sym.x_final)]
     if d.u_star is None:
         summary.append(("u*", f"not derived: {d.u_star_note}"))
     else:

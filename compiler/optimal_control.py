@@ -106,7 +106,8 @@ def _characterise(sym: SymbolicProblem, H, dH_du):
                 + ": u* = lower bound where the switching function dH/du > 0, upper bound where < 0, mid-box on a "
                 "singular arc (dH/du = 0)")
     else:
-        note = "u* solves dH/du = 0 (H quadratic in u, positive curvature at the nominal parameters), clipped to the bounds"
+        note = ("u* solves dH/du = 0 (H quadratic in u, positive curvature at the nominal parameters), "
+                "clipped to the bounds")
     return tuple(u_star), kind, note
 
 

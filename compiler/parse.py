@@ -240,7 +240,8 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
                               r.loc(f["guess"], path + ("guess",)))
             parameters.append(Parameter(
                 name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
-                description=r.text(f["description"], path + ("description",), "a description") if "description" in f else "",
+                description=(r.text(f["description"], path + ("description",), "a description")
+                             if "description" in f else ""),
                 units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
                 learnable=learnable, guess=guess,
             ))
@@ -305,8 +306,8 @@ def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool
             b = f["bounds"]
             bounds_loc = r.loc(b, path + ("bounds",))
             if not isinstance(b, yaml.SequenceNode) or len(b.value) != 2:
-                raise r.error(f"`bounds` must be a list `[lower, upper]`, got {_kind(b) if not isinstance(b, yaml.SequenceNode) else f'{len(b.value)} items'}",
-                              bounds_loc)
+                got = _kind(b) if not isinstance(b, yaml.SequenceNode) else f"{len(b.value)} items"
+                raise r.error(f"`bounds` must be a list `[lower, upper]`, got {got}", bounds_loc)
             lower = r.expr(b.value[0], path + ("bounds", "lower"))
             upper = r.expr(b.value[1], path + ("bounds", "upper"))
         out.append(Variable(
@@ -314,7 +315,8 @@ def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool
             initial=r.expr(f["initial"], path + ("initial",)) if "initial" in f else None,
             final=r.expr(f["final"], path + ("final",)) if "final" in f else None,
             lower=lower, upper=upper, bounds_loc=bounds_loc,
-            description=r.text(f["description"], path + ("description",), "a description") if "description" in f else "",
+            description=(r.text(f["description"], path + ("description",), "a description")
+                         if "description" in f else ""),
             units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
         ))
     return out

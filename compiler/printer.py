@@ -33,7 +33,9 @@ class StrictJaxPrinter(JaxPrinter):
         field: the spec field being printed, for error messages (set with :meth:`for_field`).
     """
 
-    _default_settings: ClassVar[dict] = {**JaxPrinter._default_settings, "strict": True, "fully_qualified_modules": True}
+    _default_settings: ClassVar[dict] = {
+        **JaxPrinter._default_settings, "strict": True, "fully_qualified_modules": True,
+    }
 
     def __init__(self, settings=None):
         super().__init__(settings or {})

@@ -4,12 +4,21 @@
     sol = solve(load("van_der_pol"), MultipleShooting(intervals=20), Ipopt(tol=1e-8))
 """
 
-from .integrators import RK4 as RK4, Adaptive as Adaptive, Euler as Euler, Heun as Heun, Midpoint as Midpoint
+from .integrators import RK4 as RK4
+from .integrators import Adaptive as Adaptive
+from .integrators import Euler as Euler
+from .integrators import Heun as Heun
+from .integrators import Midpoint as Midpoint
 from .loader import load as load
 from .simulate import simulate as simulate
-from .solve import Solution as Solution, solve as solve, solve_batch as solve_batch
-from .solvers import SLSQP as SLSQP, Extragradient as Extragradient, Ipopt as Ipopt
-from .system import OptimalControlUnavailable as OptimalControlUnavailable, System as System
+from .solve import Solution as Solution
+from .solve import solve as solve
+from .solve import solve_batch as solve_batch
+from .solvers import SLSQP as SLSQP
+from .solvers import Extragradient as Extragradient
+from .solvers import Ipopt as Ipopt
+from .system import OptimalControlUnavailable as OptimalControlUnavailable
+from .system import System as System
 from .transcriptions import ForwardBackwardSweep as ForwardBackwardSweep
 from .transcriptions import HermiteSimpson as HermiteSimpson
 from .transcriptions import MultipleShooting as MultipleShooting

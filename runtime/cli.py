@@ -47,7 +47,8 @@ def _parser():
                    help=f"for {', '.join(shooting)} (default: each one's own)")
     s.add_argument("--intervals", "--controls", dest="intervals", type=int, default=None, metavar="N",
                    help="the control grid: N uniform intervals (N + 1 control nodes), the same grid for every method "
-                        "(multiple shooting groups them into shooting intervals of 5 steps); default: each method's own")
+                        "(multiple shooting groups them into shooting intervals of 5 steps); "
+                        "default: each method's own")
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")

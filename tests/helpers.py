@@ -12,7 +12,7 @@ ALL_SPEC_NAMES = [p.stem for p in ALL_SPECS]
 
 
 def sample_interval(lo, hi, centre, rng, n):
-    """n points strictly inside [lo, hi]; an infinite side gets a window scaled by the centre (x0, or 0 for controls)."""
+    """n points strictly inside [lo, hi]; an infinite side gets a window scaled by the centre (x0; 0 for controls)."""
     width = max(1.0, abs(centre))
     lo = centre - 2 * width if math.isinf(lo) else lo
     hi = centre + 2 * width if math.isinf(hi) else hi

@@ -19,8 +19,8 @@ import abc
 import dataclasses
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
 import weakref
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, ClassVar, Hashable, TypeVar
 
 import jax

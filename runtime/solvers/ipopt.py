@@ -16,10 +16,10 @@ from ..status import from_ipopt
 from .base import (
     AbstractNLPSolver,
     CompiledFunction,
-    compile_many,
     ScaledProblem,
     cached,
     canonical_data,
+    compile_many,
     constraint_violation,
     initial_point,
 )

@@ -15,7 +15,7 @@ from ..data import ProblemData
 from ..method import AbstractMethod
 from ..nlp import NLP
 from ..solution import Solution
-from ..solvers import AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
+from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
 from ..system import System
 
 __all__ = ["AbstractTranscription", "TrajectoryFn", "transcribe"]
@@ -82,8 +82,9 @@ class AbstractTranscription(AbstractMethod):
     def solve_problems(self, system: System, solver: Any, data: ProblemData) -> list[Solution]:
         solver = Extragradient() if solver is None else solver
         if not isinstance(solver, AbstractPureSolver):
+            pure = ", ".join(name for name, cls in SOLVERS.items() if issubclass(cls, AbstractPureSolver))
             raise TypeError(
-                f"a batched solve needs a solver whose whole solve is a JAX function (extragradient), got "
+                f"a batched solve needs a solver whose whole solve is a JAX function ({pure}), got "
                 f"{type(solver).__name__}, which leaves JAX at every iteration; solve the problems one at a time "
                 f"with solve()"
             )

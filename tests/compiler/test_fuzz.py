@@ -9,7 +9,8 @@ import json
 import re
 
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from myriad.compiler import SpecError, SpecErrors, compile_spec
 
@@ -177,7 +178,8 @@ FORMER_LOWERING_FAILURES = [
 ]
 
 
-@pytest.mark.parametrize("old,new,outcome", FORMER_LOWERING_FAILURES, ids=[c[1].strip() for c in FORMER_LOWERING_FAILURES])
+@pytest.mark.parametrize("old,new,outcome", FORMER_LOWERING_FAILURES,
+                         ids=[c[1].strip() for c in FORMER_LOWERING_FAILURES])
 def test_former_lowering_failures(old, new, outcome):
     err = _compile(VALID.replace(old, new).replace("EXPR", "-d + u"))
     assert (err is None) == (outcome == "compiles"), err

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-import inspect
 import math
 
 import jax
@@ -11,9 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from myriad.runtime import integrators
 from myriad.runtime.integrators import (
-    INTEGRATORS,
     RK4,
     AbstractIntegrator,
     Adaptive,

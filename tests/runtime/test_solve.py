@@ -12,10 +12,15 @@ import pytest
 from myriad.runtime import load
 from myriad.runtime.integrators import RK4
 from myriad.runtime.solve import solve, solve_batch
-from myriad.runtime.transcriptions import default_data
 from myriad.runtime.solvers import SLSQP, Extragradient, Ipopt
-from myriad.runtime.transcriptions import (ForwardBackwardSweep, HermiteSimpson, MultipleShooting, SingleShooting,
-                                           Trapezoidal)
+from myriad.runtime.transcriptions import (
+    ForwardBackwardSweep,
+    HermiteSimpson,
+    MultipleShooting,
+    SingleShooting,
+    Trapezoidal,
+    default_data,
+)
 
 SPECS = Path(__file__).parent / "specs"
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import gc
-import inspect
 import weakref
 from typing import Any
 
@@ -19,12 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import myriad.runtime.solvers as solvers_pkg
 from myriad.runtime.nlp import NLP
 from myriad.runtime.solvers import SLSQP, SOLVERS, AbstractNLPSolver, Extragradient, Ipopt, constraint_violation
 from myriad.runtime.solvers.ipopt import judge
-from myriad.runtime.status import Status
 from myriad.runtime.solvers.sparse import HessianColouring, compressed_jacobian_fn, hvp_batch_fn
+from myriad.runtime.status import Status
 
 INF = np.inf
 NO_DATA = {"params": {}, "x0": np.zeros(1)}

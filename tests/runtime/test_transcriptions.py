@@ -6,8 +6,6 @@ compiled function per NLP returning objective, gradient, constraints and Jacobia
 
 from __future__ import annotations
 
-import dataclasses
-import inspect
 import math
 
 import jax
@@ -16,14 +14,13 @@ import numpy as np
 import pytest
 import scipy.optimize
 
-from myriad.runtime import load, transcriptions
+from myriad.runtime import load
 from myriad.runtime.integrators import Heun
 from myriad.runtime.simulate import simulate
 from myriad.runtime.system import OptimalControlUnavailable
 from myriad.runtime.transcriptions import (
     INDIRECT,
     TRANSCRIPTIONS,
-    AbstractTranscription,
     ForwardBackwardSweep,
     HermiteSimpson,
     MultipleShooting,
