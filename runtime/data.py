@@ -53,7 +53,7 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
     if params is not None:
         _check_names(system, params, p)
         check_structural_params(system, params)
-        p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
+        p.update({k: _leaves(v, dtype) for k, v in params.items()})
     x0 = system.x0 if x0 is None else x0
     return ProblemData(params=p, x0=jnp.asarray(x0, dtype=dtype))
 
@@ -70,7 +70,7 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
         ValueError: no batch axis, or batch sizes that differ between the arguments.
     """
     params = params or {}
-    sizes = {int(np.shape(v)[0]) if np.ndim(v) else -1 for v in params.values()}
+    sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(params)}
     if x0 is not None:
         sizes.add(int(np.shape(x0)[0]) if np.ndim(x0) > 1 else -1)
     if -1 in sizes:
@@ -82,10 +82,15 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     base = default_data(system)
     _check_names(system, params, base.params)
     check_structural_params(system, params)
-    p = {k: jnp.broadcast_to(v, (batch,)) for k, v in base.params.items()}
-    p.update({k: jnp.asarray(v, dtype=dtype) for k, v in params.items()})
+    p = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), base.params)
+    p.update({k: _leaves(v, dtype) for k, v in params.items()})
     xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, dtype)
     return ProblemData(params=p, x0=xs)
+
+
+def _leaves(value: Any, dtype) -> Any:
+    """Every leaf of a parameter value (a number, an array, or a pytree such as a network) as a ``dtype`` array."""
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype=dtype), value)
 
 
 def _check_names(system: System, given: dict, known: dict) -> None:
