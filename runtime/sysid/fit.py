@@ -1,0 +1,349 @@
+"""Fit a model's parameters to trajectories: the published trajectory loss, minimised by an optax optimiser.
+
+Each epoch visits the training trajectories once, in minibatches of a fixed shape: a permutation drawn from the
+run's PRNG key (``jax.random``, seeded by ``FitConfig.seed``), padded to a whole number of batches with repeated
+trajectories whose weight is 0, so every batch has the same shape and the epoch is one ``jax.jit``-compiled
+``lax.scan`` reused by every epoch (one compilation per curriculum stage; ``FitResult.compile_count`` counts the
+traces). A step differentiates the loss of :mod:`.losses` with respect to the *trainable* part of theta only
+(``model.partition``): frozen leaves (a Neural ODE's normalisation) get no gradient and no update.
+
+Every ``validate_every`` epochs the validation loss is computed: always the full-horizon, single-shooting loss
+(gamma = 1, same scale), whatever the training layout, so it compares across curriculum stages and methods. The best
+parameters on validation are kept and returned (those of epoch 0, the start, if nothing improved on them). Stops:
+``"converged"`` (validation loss <= ``tol``), ``"early_stopping"`` (``patience`` validations in a row without
+improvement, counted in the last curriculum stage only), ``"max_epochs"``, ``"non_finite"`` (a training loss or
+gradient or a validation loss that is NaN/inf: the fit stops at once, keeps the best parameters, and reports the
+reason; it never reports success for it).
+
+Checkpoints (:mod:`.checkpoint`) are written every ``checkpoint_every`` epochs and when the fit stops (never a
+non-finite state). ``resume=True`` continues from the last one, checking that it belongs to the same dataset and
+configuration (``epochs``, ``patience``, ``tol`` and ``checkpoint_every`` may change): with the same seed the result
+is the uninterrupted run's, bit for bit on CPU (a shorter run's closing validation, off the ``validate_every``
+schedule, comes after its last checkpoint, so a resume never replays it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from .checkpoint import config_identity, dataset_id, load_checkpoint, save_checkpoint
+from .losses import SCALES, TRACES, fit_integrator, state_scale, train_epoch, validation_loss
+from .models.base import AbstractModel
+
+__all__ = ["FitConfig", "FitResult", "fit", "METHODS", "STOPS"]
+
+METHODS = ("single_shooting", "multiple_shooting")
+STOPS = ("converged", "early_stopping", "max_epochs", "non_finite")
+CHECKPOINT = "checkpoint.npz"
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+@dataclasses.dataclass(frozen=True)
+class FitConfig:
+    """How to fit (frozen; every field is checked on construction).
+
+    Attributes:
+        optimizer: a learning rate for ``optax.adam`` (default 1e-3, the published setting), or an
+            ``optax.GradientTransformation`` (pass the same object again to reuse the compiled epoch).
+        epochs: the most epochs (passes over the training set).
+        batch_size: trajectories per minibatch; None for the whole training set (published for parametric models).
+            A size above the training set's is clipped to it.
+        validate_every: epochs between validations.
+        patience: validations without improvement before stopping early; None never stops early.
+        method: ``"single_shooting"`` (the published loss) or ``"multiple_shooting"`` (windows of ``window`` steps,
+            each from its observed start; see :mod:`.losses`).
+        window: the multiple-shooting window W (1..N); only with ``method="multiple_shooting"`` and no curriculum.
+        curriculum: a horizon curriculum: ``((W1, E1), ..., (WK, EK))`` trains E_i epochs with window W_i (the last
+            E may be None: up to ``epochs``), or plain ``(W1, ..., WK)`` for equal shares of ``epochs``. Windows tile
+            the trajectory under multiple shooting; under single shooting a stage fits the first W_i steps only.
+        gamma: per-step weight gamma^l within each window, in (0, 1] (the published crude curriculum; 1: none).
+        scale: ``"none"`` (the published loss) or ``"range"`` (errors divided by each state's range).
+        checkpoint_every: epochs between checkpoints (with ``checkpoint_dir``); None: every validation.
+        seed: seeds the initial parameters and the minibatch order.
+        tol: stop as converged when the validation loss is <= tol (0: only an exact fit).
+    """
+
+    optimizer: Any = 1e-3
+    epochs: int = 1000
+    batch_size: int | None = None
+    validate_every: int = 10
+    patience: int | None = 30
+    method: str = "single_shooting"
+    window: int | None = None
+    curriculum: Any = None
+    gamma: float = 1.0
+    scale: str = "none"
+    checkpoint_every: int | None = None
+    seed: int = 0
+    tol: float = 0.0
+
+    def __post_init__(self):
+        opt = self.optimizer
+        if isinstance(opt, (int, float, np.floating)) and not isinstance(opt, bool):
+            if not (math.isfinite(opt) and opt > 0):
+                raise ValueError(f"FitConfig: a learning rate must be finite and > 0, got {opt!r}")
+            object.__setattr__(self, "optimizer", float(opt))
+        elif not (callable(getattr(opt, "init", None)) and callable(getattr(opt, "update", None))):
+            raise ValueError(f"FitConfig: optimizer must be an optax.GradientTransformation or a learning rate for "
+                             f"Adam, got {opt!r}")
+        for name, low, optional in (("epochs", 1, False), ("batch_size", 1, True), ("validate_every", 1, False),
+                                    ("patience", 1, True), ("checkpoint_every", 1, True), ("seed", 0, False),
+                                    ("window", 1, True)):
+            v = getattr(self, name)
+            if not ((optional and v is None) or (_int(v) and v >= low)):
+                raise ValueError(f"FitConfig: {name} must be an integer >= {low}{' or None' if optional else ''}, "
+                                 f"got {v!r}")
+        if self.method not in METHODS:
+            raise ValueError(f"FitConfig: unknown method {self.method!r}; expected one of {METHODS}")
+        if self.window is not None and (self.method != "multiple_shooting" or self.curriculum is not None):
+            raise ValueError("FitConfig: window is for method='multiple_shooting' without a curriculum (a "
+                             "curriculum gives each stage's window)")
+        if self.method == "multiple_shooting" and self.window is None and self.curriculum is None:
+            raise ValueError("FitConfig: method='multiple_shooting' needs a window (steps per window) or a curriculum")
+        if self.curriculum is not None:
+            object.__setattr__(self, "curriculum", _curriculum(self.curriculum))
+        if isinstance(self.gamma, bool) or not isinstance(self.gamma, (int, float)) or not 0 < self.gamma <= 1:
+            raise ValueError(f"FitConfig: gamma must be in (0, 1], got {self.gamma!r}")
+        object.__setattr__(self, "gamma", float(self.gamma))
+        if self.scale not in SCALES:
+            raise ValueError(f"FitConfig: unknown scale {self.scale!r}; expected one of {SCALES}")
+        if isinstance(self.tol, bool) or not isinstance(self.tol, (int, float)) or not self.tol >= 0:
+            raise ValueError(f"FitConfig: tol must be a number >= 0, got {self.tol!r}")
+
+    def stages(self, n_steps: int) -> list[tuple[int, bool, int]]:
+        """``[(window, tile, last_epoch), ...]`` on a grid of ``n_steps`` intervals (raises if a window exceeds it)."""
+        tile = self.method == "multiple_shooting"
+        if self.curriculum is None:
+            spec = [(n_steps if self.window is None else self.window, None)]
+        elif all(_int(c) for c in self.curriculum):
+            k = len(self.curriculum)
+            spec = [(w, self.epochs // k) for w in self.curriculum[:-1]] + [(self.curriculum[-1], None)]
+        else:
+            spec = list(self.curriculum)
+        out, end = [], 0
+        for w, e in spec:
+            if not 1 <= w <= n_steps:
+                raise ValueError(f"window {w} does not fit the dataset's grid of N = {n_steps} steps (1 <= W <= N)")
+            end = self.epochs if e is None else min(end + e, self.epochs)
+            out.append((w, tile or w == n_steps, end))  # a prefix of all N steps is single shooting: share its code
+        return out
+
+
+def _curriculum(c: Any) -> tuple:
+    try:
+        c = tuple(tuple(s) if isinstance(s, (list, tuple)) else s for s in c)
+    except TypeError:
+        c = ()
+    last = len(c) - 1
+    if c and all(_int(s) and s >= 1 for s in c):
+        return tuple(int(s) for s in c)
+    if c and all(isinstance(s, tuple) and len(s) == 2 and _int(s[0]) and s[0] >= 1
+                 and ((_int(s[1]) and s[1] >= 1) or (i == last and s[1] is None)) for i, s in enumerate(c)):
+        return tuple((int(w), None if e is None else int(e)) for w, e in c)
+    raise ValueError(f"FitConfig: curriculum must be (W1, ..., WK) or ((W1, E1), ..., (WK, EK or None)) with "
+                     f"windows and epochs >= 1, got {c!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class FitResult:
+    """The outcome of :func:`fit`.
+
+    Attributes:
+        theta: the best parameters on validation.
+        history: ``[(epoch, train_loss, val_loss), ...]`` at each validation; train_loss is the training objective
+            (its windows and gamma) averaged over the epoch's minibatches at their pre-update parameters.
+        best_validation_loss, best_epoch: the best validation loss and its epoch (0: the starting parameters).
+        epochs: the epochs completed (a resumed fit counts the earlier ones).
+        seconds: wall time of this call, compilation included.
+        stopped: one of ``STOPS``; ``message`` says more.
+        compile_count: traces of the compiled epoch and validation functions in this call: at most one per
+            curriculum stage plus one, and 0 when an earlier fit of the same configuration and shapes compiled them.
+        integrator: the label of the integrator the model was rolled out with.
+    """
+
+    theta: Any
+    history: list
+    best_validation_loss: float
+    epochs: int
+    seconds: float
+    stopped: str
+    best_epoch: int = 0
+    compile_count: int = 0
+    integrator: str = ""
+    message: str = ""
+
+    @property
+    def success(self) -> bool:
+        return self.stopped != "non_finite"
+
+
+def _check(model, dataset, config, theta0, checkpoint_dir, resume, progress) -> tuple[int, list]:
+    """Every argument error, before any work; returns N and the curriculum stages."""
+    if not isinstance(model, AbstractModel):
+        raise TypeError(f"fit: model must be a sysid model (Parametric, NeuralODE, ...), got {type(model).__name__}")
+    if not isinstance(config, FitConfig):
+        raise TypeError(f"fit: config must be a FitConfig, got {type(config).__name__}")
+    if not all(hasattr(dataset, k) for k in ("times", "train", "validation", "system", "spec_sha256", "sampling")):
+        raise TypeError(f"fit: dataset must be a sysid Dataset (make_dataset), got {type(dataset).__name__}")
+    system = model.system
+    if dataset.system != system.name:
+        raise ValueError(f"fit: the dataset is of system {dataset.system!r} but the model is of {system.name!r}")
+    if dataset.spec_sha256 != system.spec_sha256:
+        raise ValueError(f"fit: the dataset's spec (sha256 {dataset.spec_sha256[:12]}) is not the model's "
+                         f"({system.spec_sha256[:12]}) for {system.name!r}: regenerate the dataset")
+    tr, times = dataset.train, np.asarray(dataset.times, dtype=np.float64)
+    n_steps = times.shape[0] - 1
+    if tr.states.shape[0] < 1 or tr.states.shape[2] != system.n_states or tr.controls.shape[2] != system.n_controls:
+        raise ValueError(f"fit: {system.name} needs training states (B >= 1, N+1, {system.n_states}) and controls "
+                         f"(B, N+1, {system.n_controls}), got {tr.states.shape} and {tr.controls.shape}")
+    if n_steps < 1 or not np.allclose(np.diff(times), (times[-1] - times[0]) / n_steps, rtol=1e-9, atol=0):
+        raise ValueError("fit: the dataset's times must be a uniform grid of at least 2 nodes")
+    stages = config.stages(n_steps)
+    if theta0 is not None:
+        model.check_params(theta0)
+    if (resume and checkpoint_dir is None) or progress not in (None, True, False):
+        raise ValueError(f"fit: resume=True needs a checkpoint_dir, and progress must be None (auto), True or False; "
+                         f"got resume={resume!r}, checkpoint_dir={checkpoint_dir!r}, progress={progress!r}")
+    return n_steps, stages
+
+
+class _NoBar:  # the progress bar when there is none
+    update = set_postfix_str = close = staticmethod(lambda *args: None)
+
+
+def _bar(progress, total, initial, desc):
+    if not (sys.stderr.isatty() if progress is None else progress):
+        return _NoBar()
+    from tqdm import tqdm  # imported lazily: only the progress bar needs it
+    return tqdm(total=total, initial=initial, desc=desc, unit="epoch", file=sys.stderr, dynamic_ncols=True)
+
+
+# One object per learning rate: the optimiser is a static argument of the compiled epoch, so equal configs reuse it.
+_adam = functools.lru_cache(maxsize=32)(optax.adam)
+
+
+def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, theta0: Any = None,
+        checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool | None = None) -> FitResult:
+    """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (see the module docstring).
+
+    Args:
+        model: a :class:`~.models.base.AbstractModel` of the dataset's system.
+        dataset: a :class:`~.dataset.Dataset`; the model is rolled out with its sampling's integrator on its grid
+            (RK4 on the same grid when the data came from the adaptive integrator: :func:`.losses.fit_integrator`).
+            Without validation trajectories the training set is used for selection.
+        config: a :class:`FitConfig`.
+        theta0: starting parameters (default ``model.init_params(key, dataset.train)``, key from ``config.seed``).
+        checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; None: none.
+        resume: continue from the checkpoint in ``checkpoint_dir`` if there is one (else start afresh).
+        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
+
+    Raises:
+        TypeError, ValueError: bad arguments, a dataset of another system or spec, a window longer than the grid
+            (all before any work); ``CheckpointMismatch`` when resuming from another dataset or configuration.
+    """
+    start, traces = time.perf_counter(), sum(TRACES.values())
+    n_steps, stages = _check(model, dataset, config, theta0, checkpoint_dir, resume, progress)
+    end = stages[-1][2]
+    stage_of = np.searchsorted([s[2] for s in stages], np.arange(end + 1))  # epoch e trains in stage_of[e]
+    last = int(stage_of[end])  # the stage that runs to the end (a later one may have no epochs left)
+    integrator = fit_integrator(dataset.sampling)
+    times = np.asarray(dataset.times, dtype=np.float64)
+    common = (model.system.default_params(jnp.float64),  # spec, 1 / scale, t0, h: the loss's data
+              jnp.asarray(1.0 / state_scale(model.system, dataset.train.states, config.scale)),
+              jnp.asarray(times[0]), jnp.asarray((times[-1] - times[0]) / n_steps))
+    val = dataset.validation if dataset.validation.states.shape[0] > 0 else dataset.train
+    x_tr, u_tr, x_va, u_va = (jnp.asarray(a, dtype=jnp.float64) for a in (
+        dataset.train.states, dataset.train.controls, val.states, val.controls))
+    opt = _adam(config.optimizer) if isinstance(config.optimizer, float) else config.optimizer
+    bs = x_tr.shape[0] if config.batch_size is None else min(config.batch_size, x_tr.shape[0])
+
+    key, init_key = jax.random.split(jax.random.PRNGKey(config.seed))
+    theta = model.init_params(init_key, dataset.train) if theta0 is None else theta0
+    # Strongly typed float64 leaves: a weakly typed start would be retraced once the optimiser retypes it.
+    train, frozen = model.partition(jax.tree.map(lambda a: jnp.asarray(np.asarray(a, dtype=np.float64)), theta))
+    with jax.numpy_dtype_promotion("standard"):  # optax's own arithmetic (see losses.train_epoch)
+        opt_state = opt.init(train)
+
+    def validate(tr):
+        return float(validation_loss(tr, frozen, *common, x_va, u_va, model=model, integrator=integrator,
+                                     n_steps=n_steps))
+
+    config_id, ident = config_identity(model, config, integrator, stages, train)
+    ckpt = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
+    data_id = "" if ckpt is None else dataset_id(dataset)
+    epoch, history, stalls, stopped, message, loss = 0, [], 0, None, "", math.nan
+    if resume and ckpt.is_file():
+        c = load_checkpoint(ckpt, {"theta": train, "opt_state": opt_state}, dataset_id=data_id,
+                            config_id=config_id, config=ident)
+        train, opt_state, key, epoch, best_train, best_val, history = c[:7]
+        stalls, best_epoch = int(c.extra["stalls"]), int(c.extra["best_epoch"])
+        validated = history[-1][0] if history else 0
+    else:
+        v0 = validate(train)
+        best_train, best_val, best_epoch, validated = train, (v0 if math.isfinite(v0) else math.inf), 0, 0
+    if best_val <= config.tol:
+        stopped, message = "converged", f"validation loss {best_val:.3e} <= tol {config.tol:g}"
+    elif config.patience and 0 < epoch <= end and stage_of[epoch] == last and stalls >= config.patience:
+        stopped, message = "early_stopping", f"{stalls} validations without improvement (as checkpointed)"
+
+    every = config.checkpoint_every or config.validate_every
+    bar = _NoBar() if stopped else _bar(progress, end, epoch, f"fit {model.system.name}")
+    try:
+        while stopped is None and epoch < end:
+            e, st = epoch + 1, int(stage_of[epoch + 1])
+            new = train_epoch(train, frozen, opt_state, key, *common, x_tr, u_tr, model=model, integrator=integrator,
+                              optimizer=opt, shape=(n_steps, *stages[st][:2], config.gamma), batch_size=bs)
+            loss = float(new[3])
+            if not (bool(new[4]) and math.isfinite(loss)):
+                stopped, message = "non_finite", f"the training loss or its gradient is not finite at epoch {e}"
+                break
+            train, opt_state, key, epoch = new[0], new[1], new[2], e
+            bar.update(1)
+            if e % config.validate_every == 0:
+                v, validated = validate(train), e
+                history.append((e, loss, v))
+                bar.set_postfix_str(f"train {loss:.3e} val {v:.3e} best {min(v, best_val):.3e}")
+                if not math.isfinite(v):
+                    stopped, message = "non_finite", f"the validation loss is not finite at epoch {e}"
+                    break
+                if v < best_val:
+                    best_train, best_val, best_epoch, stalls = train, v, e, 0
+                elif st == last:  # earlier curriculum stages do not count towards patience
+                    stalls += 1
+                if best_val <= config.tol:
+                    stopped, message = "converged", f"validation loss {best_val:.3e} <= tol {config.tol:g}"
+                elif st == last and config.patience and stalls >= config.patience:
+                    stopped, message = "early_stopping", f"{stalls} validations without improvement"
+            if ckpt is not None and (e % every == 0 or stopped or e == end):
+                save_checkpoint(ckpt, theta=train, opt_state=opt_state, key=key, epoch=e, best_theta=best_train,
+                                best_val=best_val, history=history, dataset_id=data_id, config_id=config_id,
+                                config=ident, extra={"stalls": stalls, "best_epoch": best_epoch})
+    finally:
+        bar.close()
+    if stopped is None:
+        stopped, message = "max_epochs", f"{end} epochs"
+        if validated < epoch:  # close on a validation, after the checkpoint: a resume replays only the schedule
+            v = validate(train)
+            history.append((epoch, loss, v))
+            if math.isfinite(v) and v < best_val:
+                best_train, best_val, best_epoch = train, v, epoch
+    if stopped == "non_finite":
+        message += f"; returning the best parameters (epoch {best_epoch}, validation loss {best_val:.3e})"
+    note = "" if integrator == dataset.sampling.integrator else " (on the data's grid; the data: adaptive)"
+    return FitResult(theta=model.combine(best_train, frozen), history=history, best_validation_loss=best_val,
+                     epochs=epoch, seconds=time.perf_counter() - start, stopped=stopped, best_epoch=best_epoch,
+                     compile_count=sum(TRACES.values()) - traces, integrator=integrator.label + note, message=message)

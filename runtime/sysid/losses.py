@@ -1,0 +1,242 @@
+"""The trajectory loss of system identification, and its multiple-shooting and curriculum variants.
+
+Notation: a batch of B observed trajectories on the uniform grid t_k = t_0 + k h, k = 0..N (h = (t_N - t_0) / N),
+controls u_{b,k} (m) and states x_{b,k} (n). The model with parameters theta is rolled out with a one-step integrator
+Phi (the data's own, see :func:`fit_integrator`) from an *observed* state with the observed, piecewise-linear controls:
+
+    x~_{b, s + l} = Phi^l(x_{b,s}),     l = 1..W,
+
+in windows of W steps starting at nodes s in S. The loss is
+
+    loss(theta) = sum_b m_b sum_{s in S} sum_{l=1..W} c_{s,l} gamma^l sum_i ((x~_{b,s+l,i} - x_{b,s+l,i}) / s_i)^2
+                  / (sum_b m_b * K * n),
+
+with m_b in {0, 1} a trajectory mask (the padding of a fixed-shape minibatch), s_i a per-state scale, gamma in (0, 1]
+a per-step discount and c_{s,l} = 1 / (number of windows that predict node s + l), so each predicted node weighs 1 in
+total and K is the number of distinct predicted nodes. The layouts:
+
+* single shooting, S = {0}, W = N: with gamma = 1 and s = 1 this is the published loss
+  ``1/(B N n) sum ||x~ - x||^2`` over nodes k = 1..N (node 0 is the observed start, not a prediction);
+* multiple shooting (``tile=True``): S = {0, W, 2W, ...}, and when W does not divide N the last window starts at
+  N - W instead (it overlaps its neighbour, whence c = 1/2 on the shared nodes) so every window is a true W-step
+  rollout on the data grid: no rollout runs past t_N on invented controls. Each window starts at an observed state,
+  so no continuity penalty is needed. K = N;
+* a horizon prefix (``tile=False``): S = {0}, only the first W steps (K = W): a curriculum stage on the early part of
+  each trajectory, as diffrax's Neural ODE example trains on the first 10 % first.
+
+gamma^l is the published "crude curriculum" (gamma ~ 0.88 for Bacteria, Mountain Car, Cart-Pole), counted from each
+window's start. Scales: ``"none"`` (s = 1, the published loss) or ``"range"`` (s_i = x_max,i - x_min,i where both
+bounds are finite, else max |x_i| observed, else 1: states of very different magnitudes, such as HIV Treatment's
+T ~ 1000 and I ~ 0.04, then weigh alike; the same definition as :mod:`.least_squares`).
+
+:func:`trajectory_loss` evaluates the loss for one batch (tests, diagnostics); :func:`validation_loss` and
+:func:`train_epoch` are the two compiled functions :func:`~.fit.fit` runs, jit-cached on their static configuration
+(model, integrator, optimiser, layout, shapes), so a second fit of the same configuration compiles nothing.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ..integrators import INTEGRATORS, RK4, AbstractIntegrator, rollout
+
+__all__ = ["SCALES", "TRACES", "Layout", "fit_integrator", "layout", "state_scale", "train_epoch", "trajectory_loss",
+           "validation_loss", "window_losses"]
+
+SCALES = ("none", "range")
+
+
+def fit_integrator(sampling: Any) -> AbstractIntegrator:
+    """The integrator a fit rolls the model out with: the one that generated the data.
+
+    The one exception: data from the ``Adaptive`` integrator (several adaptive sub-steps per interval, reverse-mode
+    gradients only, and a step-size controller that makes the loss only piecewise smooth in theta) is fitted with
+    ``RK4`` on the same grid: one fixed step per interval, differentiable, and order 4, so its discretisation error
+    is small next to any modelling error on a usual grid. ``None`` (no sampling recorded) means Heun, the published
+    integrator.
+    """
+    integ = getattr(sampling, "integrator", sampling)
+    if integ is None:
+        return INTEGRATORS["heun"]()
+    if isinstance(integ, str):
+        if integ not in INTEGRATORS:
+            raise ValueError(f"unknown integrator {integ!r}; expected one of {sorted(INTEGRATORS)}")
+        integ = INTEGRATORS[integ]()
+    if not isinstance(integ, AbstractIntegrator):
+        raise TypeError(f"the dataset's sampling.integrator must be an integrator object, got {integ!r}")
+    return integ if integ.fixed_step else RK4()
+
+
+def state_scale(system: Any, states: Any, scale: str) -> np.ndarray:
+    """The per-state scale s (n,) of the loss: ones for ``"none"``; see the module docstring for ``"range"``."""
+    n = np.shape(states)[-1]
+    if scale == "none":
+        return np.ones(n)
+    if scale != "range":
+        raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
+    states = np.asarray(states, dtype=np.float64)  # concrete data: the scale is a constant of the loss
+    a = system.arrays()
+    s = a["x_upper"] - a["x_lower"]
+    observed = np.max(np.abs(states).reshape(-1, n), axis=0) if states.size else np.zeros(n)
+    s = np.where(np.isfinite(s) & (s > 0), s, observed)
+    return np.where(np.isfinite(s) & (s > 0), s, 1.0)
+
+
+class Layout:
+    """Where the windows of a loss start and how each predicted node is weighted (host arrays, fixed shapes).
+
+    Attributes:
+        window: W, the steps per window.
+        starts: (J,) int, the windows' first nodes.
+        weights: (J, W) float, c_{s,l} gamma^l for l = 1..W.
+        count: K, the number of distinct predicted nodes (the loss divides by K n).
+    """
+
+    def __init__(self, starts: np.ndarray, window: int, weights: np.ndarray, count: int):
+        self.starts, self.window, self.weights, self.count = starts, window, weights, count
+
+    def __repr__(self) -> str:
+        return f"Layout(window={self.window}, starts={self.starts.tolist()}, count={self.count})"
+
+
+def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma: float = 1.0) -> Layout:
+    """The window layout over N = ``n_steps`` intervals (see the module docstring).
+
+    Args:
+        n_steps: N.
+        window: W in 1..N; None means N (single shooting).
+        tile: windows over the whole trajectory (multiple shooting) or only the first W steps (a prefix).
+        gamma: the per-step discount, in (0, 1].
+    """
+    window = n_steps if window is None else int(window)
+    if not 1 <= window <= n_steps:
+        raise ValueError(f"window must be between 1 and the N = {n_steps} steps of the grid, got {window}")
+    if tile:
+        starts = list(range(0, n_steps - window + 1, window))
+        if starts[-1] + window < n_steps:
+            starts.append(n_steps - window)  # an overlapping last window, rather than a rollout past t_N
+    else:
+        starts = [0]
+    starts = np.asarray(starts, dtype=np.int64)
+    nodes = starts[:, None] + np.arange(1, window + 1)[None, :]  # (J, W): the predicted nodes
+    cover = np.bincount(nodes.ravel(), minlength=n_steps + 1)
+    disc = gamma ** np.arange(1, window + 1, dtype=np.float64)
+    weights = disc[None, :] / cover[nodes]
+    return Layout(starts, window, weights, int(np.count_nonzero(cover)))
+
+
+def window_losses(model: Any, integrator: AbstractIntegrator, lay: Layout, theta: Any, spec_params: Any,
+                  t0: Any, h: Any, controls: Any, states: Any, inv_scale: Any) -> jax.Array:
+    """Per-trajectory losses (B,): sum_{s,l} c gamma^l ||(x~ - x) / s||^2 / (K n), see the module docstring.
+
+    ``controls`` (B, N+1, m) and ``states`` (B, N+1, n) are the observations; ``inv_scale`` is 1 / s, shape (n,).
+    Traceable: use inside ``jit``/``grad``; ``lay`` is static (host arrays).
+    """
+
+    def f(x, u, t):
+        return model.vector_field(x, u, t, theta, spec_params)
+
+    idx = lay.starts[:, None] + np.arange(lay.window + 1)[None, :]  # (J, W+1) node indices of each window
+    x_start = states[:, lay.starts]  # (B, J, n): every window starts at an observed state
+    u_win = controls[:, idx]  # (B, J, W+1, m)
+    t_start = t0 + jnp.asarray(lay.starts, dtype=states.dtype) * h  # t_s, as the data's own grid computes it
+
+    def one(x0, ts, us):
+        return rollout(integrator, f, x0, ts, h, us)
+
+    pred = jax.vmap(jax.vmap(one, in_axes=(0, 0, 0)), in_axes=(0, None, 0))(x_start, t_start, u_win)
+    err = (pred[:, :, 1:] - states[:, idx[:, 1:]]) * inv_scale  # (B, J, W, n)
+    per_node = jnp.sum(err * err, axis=-1)  # (B, J, W)
+    n = states.shape[-1]
+    return jnp.sum(per_node * jnp.asarray(lay.weights, dtype=states.dtype), axis=(1, 2)) / (lay.count * n)
+
+
+def trajectory_loss(model: Any, theta: Any, times: Any, controls: Any, states: Any, *,
+                    integrator: AbstractIntegrator | None = None, window: int | None = None, tile: bool = True,
+                    gamma: float = 1.0, scale: str = "none", spec_params: Any = None, mask: Any = None) -> jax.Array:
+    """The loss of the module docstring for one batch: a scalar, differentiable in ``theta``.
+
+    Args:
+        model: an ``AbstractModel`` (``vector_field(x, u, t, theta, spec_params)``; ``system`` for the scale).
+        theta: the model's parameters.
+        times: the grid (N+1,), uniform.
+        controls, states: observations, (B, N+1, m) and (B, N+1, n) (a ``Trajectories``' fields).
+        integrator: the one-step method (default Heun, the published one; see :func:`fit_integrator`).
+        window, tile, gamma: the layout (:func:`layout`); the defaults give single shooting.
+        scale: ``"none"`` (published) or ``"range"`` (computed from ``states`` and the bounds).
+        spec_params: the spec's parameter dict (default ``model.system.default_params()``).
+        mask: (B,) weights in {0, 1} (default all ones).
+    """
+    times = np.asarray(times, dtype=np.float64)
+    n_steps = times.shape[0] - 1
+    integrator = fit_integrator(integrator)
+    lay = layout(n_steps, window, tile=tile, gamma=gamma)
+    inv = 1.0 / state_scale(model.system, states, scale)
+    states, controls = jnp.asarray(states), jnp.asarray(controls)
+    inv = jnp.asarray(inv, dtype=states.dtype)
+    spec_params = model.system.default_params(states.dtype) if spec_params is None else spec_params
+    h = (times[-1] - times[0]) / n_steps
+    per = window_losses(model, integrator, lay, theta, spec_params, times[0], h, controls, states, inv)
+    if mask is None:
+        return jnp.mean(per)
+    mask = jnp.asarray(mask, dtype=per.dtype)
+    return jnp.sum(per * mask) / jnp.sum(mask)
+
+
+# Incremented while tracing the two compiled functions below (Python runs only when JAX traces): how many times they
+# were (re)compiled, for :func:`~.fit.fit`'s ``compile_count`` and the tests' "no recompiles" check.
+TRACES = {"validation_loss": 0, "train_epoch": 0}
+
+
+@functools.partial(jax.jit, static_argnames=("model", "integrator", "n_steps"))
+def validation_loss(train, frozen, spec, inv, t0, h, x, u, *, model, integrator, n_steps):
+    """The full-horizon single-shooting loss (gamma = 1) of ``model.combine(train, frozen)`` on (x, u)."""
+    TRACES["validation_loss"] += 1
+    theta = model.combine(train, frozen)
+    return jnp.mean(window_losses(model, integrator, layout(n_steps), theta, spec, t0, h, u, x, inv))
+
+
+@functools.partial(jax.jit, static_argnames=("model", "integrator", "optimizer", "shape", "batch_size"))
+def train_epoch(train, frozen, opt_state, key, spec, inv, t0, h, x_all, u_all, *, model, integrator, optimizer,
+                shape, batch_size):
+    """One epoch: a permutation of the B trajectories from ``key``, padded with weight-0 repeats to whole batches of
+    ``batch_size``, and one optimiser step per batch on the loss of the layout ``shape = (N, W, tile, gamma)``.
+
+    Differentiates with respect to ``train`` (the trainable part) only. Returns ``(train, opt_state, key,
+    mean training loss over the epoch's batches at their pre-update parameters, all losses and gradients finite)``.
+    Compiled once per (model, integrator, optimizer, layout, shapes): every epoch of a fit reuses it.
+    """
+    TRACES["train_epoch"] += 1
+    n_steps, window, tile, gamma = shape
+    lay = layout(n_steps, window, tile=tile, gamma=gamma)
+    n_train = x_all.shape[0]
+    n_batches = -(-n_train // batch_size)
+    pad = n_batches * batch_size - n_train
+    key, sub = jax.random.split(key)
+    order = jax.random.permutation(sub, n_train) if n_batches > 1 else jnp.arange(n_train)
+    order = jnp.concatenate([order, order[:pad]]).reshape(n_batches, batch_size)
+    mask = jnp.concatenate([jnp.ones(n_train), jnp.zeros(pad)]).reshape(n_batches, batch_size)
+
+    def batch_loss(tr, x, u, m):
+        per = window_losses(model, integrator, lay, model.combine(tr, frozen), spec, t0, h, u, x, inv)
+        return jnp.sum(per * m) / jnp.sum(m)
+
+    def body(carry, batch):
+        tr, st = carry
+        idx, m = batch
+        loss, g = jax.value_and_grad(batch_loss)(tr, x_all[idx], u_all[idx], m)
+        ok = jnp.isfinite(loss) & jnp.all(jnp.asarray([jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(g)]))
+        # NOTE: optax mixes Python floats with its int32 step count (adam's b1 ** count), which strict promotion (the
+        # tests' setting) rejects: standard promotion for optax's own arithmetic only, as the extragradient does.
+        with jax.numpy_dtype_promotion("standard"):
+            upd, st = optimizer.update(g, st, tr)
+            return (optax.apply_updates(tr, upd), st), (loss, ok)
+
+    (train, opt_state), (losses, oks) = jax.lax.scan(body, (train, opt_state), (order, mask))
+    return train, opt_state, key, jnp.sum(losses * jnp.sum(mask, axis=1)) / n_train, jnp.all(oks)
