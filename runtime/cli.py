@@ -51,6 +51,9 @@ def _parser():
                         "default: each method's own")
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
+    from .sysid.cli import add_parser as add_sysid
+
+    add_sysid(sub)
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
     b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
     b.add_argument("--json", metavar="FILE")
@@ -132,6 +135,13 @@ def _cmd_solve(args) -> int:
     return 0 if sol.converged else 1
 
 
+def _cmd_sysid(args) -> int:
+    _configure_jax()
+    from .sysid.cli import run
+
+    return run(args)
+
+
 def _cmd_bench(args) -> int:
     _configure_jax()
     from .bench import markdown_table, run_bench
@@ -169,7 +179,7 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
-        return {"solve": _cmd_solve, "bench": _cmd_bench}[args.command](args)
+        return {"solve": _cmd_solve, "bench": _cmd_bench, "sysid": _cmd_sysid}[args.command](args)
     except KeyError as exc:
         print(f"myriad: error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2

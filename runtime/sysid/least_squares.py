@@ -1,0 +1,296 @@
+"""Nonlinear least squares for a parametric model: Levenberg-Marquardt on trajectory residuals, with standard errors.
+
+For parameters theta, every fitted trajectory b, node k and state i the residual is
+
+    r_{b,k,i}(theta) = w_{b,k,i} (x~_{b,k,i}(theta) - x_{b,k,i}),     w_{b,k,i} = 1 / s_i  or 0,
+
+with x the observed states, s_i a per-state scale (the state's bound range where finite, else max |x_i| observed) so
+that states of different magnitudes weigh alike, and x~ the model rolled out by the dataset's own integrator on its
+grid under the observed controls:
+
+* single shooting: from each observed start x_{b,0} over the whole horizon, nodes k >= 1 (w = 0 at k = 0);
+* multiple shooting: in windows of ``window`` steps, the one starting at node j w from the observed x_{b,jw}
+  (x~ at node j w + l is l steps from there), which keeps the residuals of unstable or oscillating systems (Van der
+  Pol, Cart-Pole, a pendulum) from depending on the parameters through one long, sensitive rollout;
+* ``fit_starts`` (single shooting, the default on noisy data): the starts xi_b are unknowns too, x~_{b,0} = xi_b,
+  with residuals at k = 0; noisy observed starts would otherwise bias theta (errors in variables) and make the
+  standard errors overconfident. Multiple shooting starts every window at a noisy observation: prefer single
+  shooting with ``fit_starts`` for standard errors on noisy data.
+
+On noisy data, observations at a finite state bound are dropped (w = 0; ``drop_clipped``): the dataset clips noisy
+observations to the bounds, so they are censored, not Gaussian.
+
+The parameters are solved for in scaled form, theta = c p with c = theta0 where theta0 != 0 (else 1), so p starts
+at 1 and parameters of very different magnitudes (HIV's k = 4.4e-5 and T_max = 1400) are equally conditioned;
+results are in the original units. ``min_p 1/2 ||r(c p)||^2`` is one ``optimistix.least_squares`` call
+(Levenberg-Marquardt: Gauss-Newton steps J^T J dp = -J^T r regularised by a trust region), jit-compiled once per
+(model, integrator, shapes, options).
+
+Standard errors come from the Gauss-Newton Hessian at the solution. With J = dr/dp (forward mode), m residuals
+(w > 0) and K unknowns (P parameters, plus the starts), sigma^2 = RSS / (m - K) and Cov(p) = sigma^2 (J^T J)^-1 =
+sigma^2 V S^-2 V^T from the SVD J = U S V^T, so Cov(theta) = C Cov(p)_{PxP} C with C = diag(c). Singular values
+below ``rcond * max(S)`` are directions in which the residuals do not change: a parameter with a component above
+``null_tol`` in them has unbounded variance, so it is listed in ``unidentifiable`` with a NaN standard error (and
+NaN covariance row) instead of a confident wrong number; the others' covariance is V_r S_r^-2 V_r^T over the rest.
+On noise-free data sigma^2 ~ 0, and so are the standard errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ..integrators import AbstractIntegrator, Heun, rollout
+from ..status import Status
+
+__all__ = ["LeastSquaresResult", "least_squares"]
+
+METHODS = ("single_shooting", "multiple_shooting")
+
+
+@dataclasses.dataclass(frozen=True)
+class LeastSquaresResult:
+    """The outcome of :func:`least_squares` (host values, original units).
+
+    Attributes:
+        theta: the learned parameters, {name: value}.
+        standard_errors: {name: standard error}; NaN for an unidentifiable parameter.
+        covariance: (P, P) in ``names`` order, in original units; NaN rows and columns for unidentifiable ones.
+        names: the parameter names in the order of ``covariance``.
+        residual_norm: ||r|| at the solution (scaled residuals, see the module docstring).
+        n_obs, dof, sigma2: the residuals m that count (w > 0), m - K, and RSS / (m - K) (NaN when m <= K).
+        converged, status, message: whether Levenberg-Marquardt met its tolerances, as a
+            :class:`~myriad.runtime.status.Status`, and why (with any identifiability warning).
+        steps: Levenberg-Marquardt steps taken (accepted or not).
+        unidentifiable: the names the data cannot identify (``message`` gives the direction).
+        singular_values: of J = dr/dp (scaled parameters, then the starts), descending.
+        seconds: wall time, compilation included.
+        method: "single_shooting" or "multiple_shooting".
+        starts: (B, n) the fitted starts with ``fit_starts``, else None.
+    """
+
+    theta: dict[str, float]
+    standard_errors: dict[str, float]
+    covariance: np.ndarray
+    names: tuple[str, ...]
+    residual_norm: float
+    n_obs: int
+    dof: int
+    sigma2: float
+    converged: bool
+    status: Status
+    message: str
+    steps: int
+    unidentifiable: tuple[str, ...]
+    singular_values: np.ndarray
+    seconds: float
+    method: str = "single_shooting"
+    starts: np.ndarray | None = None
+
+    def record(self) -> dict[str, Any]:
+        """A JSON-ready summary (NaN and inf as None), without the covariance and the starts."""
+        num = lambda v: float(v) if math.isfinite(float(v)) else None  # noqa: E731
+        out = {k: getattr(self, k) for k in ("n_obs", "dof", "converged", "message", "steps", "seconds", "method")}
+        return {**out, "theta": {k: num(v) for k, v in self.theta.items()}, "residual_norm": num(self.residual_norm),
+                "standard_errors": {k: num(v) for k, v in self.standard_errors.items()}, "sigma2": num(self.sigma2),
+                "status": str(self.status), "unidentifiable": list(self.unidentifiable),
+                "singular_values": [num(x) for x in self.singular_values]}
+
+
+def _predict(model, integrator, window, theta, spec, times, starts, x_obs, u_obs):
+    """x~ at nodes 0..N, (B, N + 1, n): from ``starts`` (single shooting) or in windows from the observations."""
+    f = lambda x, u, t: model.vector_field(x, u, t, theta, spec)  # noqa: E731
+    t0, h = times[0], times[1] - times[0]
+    if window is None:
+        return jax.vmap(lambda x0, us: rollout(integrator, f, x0, t0, h, us))(starts, u_obs)
+    n_batch, n_steps, n = x_obs.shape[0], x_obs.shape[1] - 1, x_obs.shape[2]
+    n_win = -(-n_steps // window)
+    pad = n_win * window - n_steps  # a short last window: its nodes past t_N (on the last control held) are cut
+    u_pad = jnp.concatenate([u_obs, jnp.repeat(u_obs[:, -1:], pad, axis=1)], axis=1)
+    idx = np.arange(n_win)[:, None] * window + np.arange(window + 1)[None, :]  # (W, w + 1) node indices
+    t_win = t0 + jnp.arange(n_win, dtype=times.dtype) * (window * h)
+    one = lambda x0, tw, us: rollout(integrator, f, x0, tw, h, us)  # noqa: E731
+    xs = jax.vmap(jax.vmap(one, in_axes=(0, 0, 0)), in_axes=(0, None, 0))(x_obs[:, ::window][:, :n_win], t_win,
+                                                                           u_pad[:, idx])
+    return jnp.concatenate([x_obs[:, :1], xs[:, :, 1:].reshape(n_batch, n_win * window, n)[:, :n_steps]], axis=1)
+
+
+# optimistix's outcomes onto myriad's; anything else (stagnation, divergence, a failed linear solve) is NOT_CONVERGED.
+_RESULTS = ((optx.RESULTS.successful, Status.CONVERGED), (optx.RESULTS.max_steps_reached, Status.ITERATION_LIMIT),
+            (optx.RESULTS.nonlinear_max_steps_reached, Status.ITERATION_LIMIT),
+            (optx.RESULTS.nonfinite, Status.NOT_FINITE), (optx.RESULTS.nonfinite_input, Status.NOT_FINITE))
+
+
+@functools.partial(jax.jit, static_argnames=("model", "integrator", "names", "window", "fit_starts", "rtol", "atol",
+                                             "max_steps"))
+def _solve(p0, c, state_scale, spec, times, x_obs, u_obs, weights, *, model, integrator, names, window, fit_starts,
+           rtol, atol, max_steps):
+    """The whole fit as one program: LM from p0, then the residuals and their Jacobian at the solution."""
+    n_par = len(names)
+
+    def residuals(p, _):
+        theta = {k: c[i] * p[i] for i, k in enumerate(names)}
+        starts = p[n_par:].reshape(x_obs.shape[0], x_obs.shape[2]) * state_scale if fit_starts else x_obs[:, 0]
+        pred = _predict(model, integrator, window, theta, spec, times, starts, x_obs, u_obs)
+        return ((pred - x_obs) * weights).ravel()
+
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    sol = optx.least_squares(residuals, solver, p0, max_steps=max_steps, throw=False)
+    code = jnp.asarray(int(Status.NOT_CONVERGED))
+    for results, status in _RESULTS:
+        code = jnp.where(sol.result == results, int(status), code)
+    start_ok = jnp.all(jnp.isfinite(residuals(p0, None).reshape(x_obs.shape[0], -1)), axis=1)  # per trajectory
+    return (sol.value, residuals(sol.value, None), jax.jacfwd(residuals)(sol.value, None), code,
+            sol.stats["num_steps"], start_ok)
+
+
+def _state_scale(system, x_fit: np.ndarray, scale) -> np.ndarray:
+    n = x_fit.shape[-1]
+    if isinstance(scale, str) and scale == "range":
+        s = system.arrays()["x_upper"] - system.arrays()["x_lower"]
+        s = np.where(np.isfinite(s) & (s > 0), s, np.max(np.abs(x_fit).reshape(-1, n), axis=0))
+        return np.where(s > 0, s, 1.0)
+    s = np.ones(n) if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,)).copy() \
+        if not isinstance(scale, str) else np.full(n, np.nan)
+    if not (np.all(np.isfinite(s)) and np.all(s > 0)):
+        raise ValueError(f"least_squares: scale must be 'range', None or {n} positive numbers, got {scale!r}")
+    return s
+
+
+def _check(model, dataset, method, window, n_steps, fit_starts) -> None:
+    system = model.system
+    name, sha = getattr(dataset, "system", None), getattr(dataset, "spec_sha256", None)
+    if name is not None and name != system.name:
+        raise ValueError(f"least_squares: the dataset is of system {name!r} but the model is of {system.name!r}")
+    if sha is not None and sha != system.spec_sha256:
+        raise ValueError(f"least_squares: the dataset's spec (sha256 {sha}) is not the model's {system.name!r} "
+                         f"({system.spec_sha256}): regenerate the dataset for this spec")
+    tr = dataset.train
+    if np.ndim(tr.states) != 3 or np.shape(tr.states)[2] != system.n_states \
+            or np.shape(tr.controls)[2] != system.n_controls:
+        raise ValueError(f"least_squares: {system.name} needs states (B, N+1, {system.n_states}) and controls (B, N+1, "
+                         f"{system.n_controls}), the dataset has {np.shape(tr.states)} and {np.shape(tr.controls)}")
+    if method not in METHODS:
+        raise ValueError(f"least_squares: method must be one of {METHODS}, got {method!r}")
+    if method == "multiple_shooting" and not (isinstance(window, int) and 1 <= window <= n_steps):
+        raise ValueError(f"least_squares: window must be an integer from 1 to the grid's {n_steps} steps, "
+                         f"got {window!r}")
+    if method == "multiple_shooting" and fit_starts:
+        raise ValueError("least_squares: fit_starts is for single shooting (each multiple-shooting window starts at "
+                         "an observation)")
+
+
+def _direction(v: np.ndarray, names: tuple[str, ...], tol: float) -> str:
+    """A null direction in original units with its largest component 1, e.g. "(+1 b, +1 mu)"."""
+    v = v / v[np.argmax(np.abs(v))]
+    return "(" + ", ".join(f"{x:+.3g} {k}" for k, x in zip(names, v) if abs(x) > tol) + ")"
+
+
+def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "single_shooting",
+                  window: int | None = None, fit_starts: bool | None = None, use_validation: bool = False,
+                  drop_clipped: bool | None = None, rtol: float = 1e-12, atol: float = 1e-12, max_steps: int = 200,
+                  scale: Any = "range", rcond: float = 1e-8, null_tol: float = 1e-6) -> LeastSquaresResult:
+    """Fit a parametric model's parameters to a dataset by Levenberg-Marquardt (see the module docstring).
+
+    Args:
+        model: a :class:`~myriad.runtime.sysid.models.Parametric` (``init_params``, ``vector_field``, ``system``).
+        dataset: a :class:`~myriad.runtime.sysid.dataset.Dataset` of the same system (name and spec hash checked).
+        theta0: starting values {name: value}; names left out start at ``model.init_params``' guesses.
+        method: "single_shooting" or "multiple_shooting".
+        window: steps per multiple-shooting window (default N // 10, at least 1).
+        fit_starts: estimate each trajectory's start too (single shooting); None: when the data are noisy
+            (``dataset.sampling.noise > 0``) and the method is single shooting.
+        use_validation: fit the training and the validation trajectories together.
+        drop_clipped: leave out observations at a finite state bound; None: when the data are noisy.
+        rtol, atol: Levenberg-Marquardt's termination tolerances (scaled parameters and residuals).
+        max_steps: the step limit.
+        scale: per-state residual scale: "range" (see the module docstring), None (1) or n positive numbers.
+        rcond: singular values of J below ``rcond * max`` count as zero (unidentifiable directions).
+        null_tol: a parameter with a larger component in those directions is reported unidentifiable.
+
+    Raises:
+        ValueError: a dataset of another system or spec, wrong shapes, unknown ``theta0`` names, an unknown method
+            or a bad window.
+    """
+    start = time.perf_counter()
+    system = model.system
+    theta_start = {k: float(v) for k, v in model.init_params(jax.random.PRNGKey(0)).items()}
+    unknown = sorted(set(theta0 or {}) - set(theta_start))
+    if unknown:
+        raise ValueError(f"least_squares: {system.name} theta0 names {unknown} are not the model's {list(theta_start)}")
+    theta_start.update({k: float(v) for k, v in (theta0 or {}).items()})
+    names = tuple(theta_start)
+    n_steps = int(np.shape(dataset.times)[0]) - 1
+    if method == "multiple_shooting" and window is None:
+        window = max(1, n_steps // 10)
+    sampling = getattr(dataset, "sampling", None)
+    noisy = getattr(sampling, "noise", 0.0) > 0
+    fit_starts = noisy and method == "single_shooting" if fit_starts is None else fit_starts
+    drop_clipped = noisy if drop_clipped is None else drop_clipped
+    _check(model, dataset, method, window, n_steps, fit_starts)
+    parts = [dataset.train] + ([dataset.validation] if use_validation else [])
+    x_obs = np.concatenate([np.asarray(t.states, dtype=np.float64) for t in parts])
+    u_obs = np.concatenate([np.asarray(t.controls, dtype=np.float64) for t in parts])
+    integrator: AbstractIntegrator = getattr(sampling, "integrator", None) or Heun()
+    s = _state_scale(system, x_obs, scale)
+    weights = np.broadcast_to(1.0 / s, x_obs.shape).copy()
+    if not fit_starts:
+        weights[:, 0] = 0.0
+    if drop_clipped:
+        a = system.arrays()
+        weights[(x_obs == a["x_lower"]) | (x_obs == a["x_upper"])] = 0.0
+    g = np.array([theta_start[k] for k in names], dtype=np.float64)
+    c = np.where(g != 0, g, 1.0)
+    p0 = np.where(g != 0, 1.0, 0.0)
+    if fit_starts:  # the starts, divided by the state scale, after the parameters
+        p0 = np.concatenate([p0, (x_obs[:, 0] / s).ravel()])
+
+    p, r, jac, code, steps, start_ok = (np.asarray(a) for a in _solve(
+        jnp.asarray(p0), jnp.asarray(c), jnp.asarray(s), system.default_params(jnp.float64),
+        jnp.asarray(dataset.times, dtype=jnp.float64), jnp.asarray(x_obs), jnp.asarray(u_obs), jnp.asarray(weights),
+        model=model, integrator=integrator, names=names, window=window if method == "multiple_shooting" else None,
+        fit_starts=fit_starts, rtol=rtol, atol=atol, max_steps=max_steps))
+    status, message = Status(int(code)), ""
+    finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(p)) and np.all(np.isfinite(jac)))
+    if not finite:
+        status = Status.NOT_FINITE if status is Status.CONVERGED else status
+        message = "; no standard errors (non-finite residuals or Jacobian)"
+    if not np.all(start_ok):
+        message += (f"; the model's rollout at the starting parameters is not finite on trajectories "
+                    f"{np.flatnonzero(~start_ok).tolist()}: start closer (theta0, e.g. from multiple shooting)")
+
+    n_obs, n_par, n_all = int(np.count_nonzero(weights)), len(names), p.size
+    dof, rss = n_obs - n_all, float(r @ r)
+    sigma2 = rss / dof if dof > 0 else math.nan
+    sv, vt, keep = np.full(n_all, math.nan), np.zeros((n_all, n_all)), np.zeros(n_all, dtype=bool)
+    if finite:
+        _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+        keep = sv > rcond * np.max(sv)
+    v_null = vt[~keep, :n_par].T if finite else np.zeros((n_par, 0))  # the parameters' part of the null directions
+    bad = np.linalg.norm(v_null, axis=1) > null_tol
+    v = vt[keep, :n_par]
+    cov = c[:, None] * ((v.T / sv[keep] ** 2) @ v * sigma2) * c[None, :]
+    cov[bad | (not finite), :] = math.nan
+    cov[:, bad | (not finite)] = math.nan
+    unidentifiable = tuple(k for k, b in zip(names, bad) if b)
+    if unidentifiable:
+        dirs = "; ".join(_direction(c * col, names, null_tol) for col in v_null.T if np.any(np.abs(col) > null_tol))
+        message += (f"; the data cannot identify: {', '.join(unidentifiable)} (the residuals do not change along "
+                    f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {rcond:g} x "
+                    f"{np.max(sv):.2e}); their standard errors are NaN")
+    return LeastSquaresResult(
+        theta={k: float(x) for k, x in zip(names, c * p[:n_par])},
+        standard_errors={k: float(math.sqrt(cov[i, i])) if np.isfinite(cov[i, i]) else math.nan
+                         for i, k in enumerate(names)},
+        covariance=cov, names=names, residual_norm=math.sqrt(rss), n_obs=n_obs, dof=dof, sigma2=sigma2,
+        converged=status is Status.CONVERGED, status=status, message=status.message + message, steps=int(steps),
+        unidentifiable=unidentifiable, singular_values=sv, seconds=time.perf_counter() - start, method=method,
+        starts=p[n_par:].reshape(x_obs.shape[0], -1) * s if fit_starts else None)

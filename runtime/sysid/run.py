@@ -1,0 +1,186 @@
+"""One system-identification experiment end to end: sample data from the true system, fit a model, plan on it,
+judge the plan on the true system; for Neural ODEs optionally the published *datasets in sequence* (train, plan,
+sample new trajectories around the plan, retrain on the union).
+
+    report = run_sysid("cancer_treatment", SysidConfig(model="parametric"))
+    report.record()   # the JSON record of `myriad sysid`
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from ..loader import load
+from ..solve import solve
+from ..system import System
+from .dataset import Dataset, Sampling, Trajectories, make_dataset
+from .evaluate import Evaluation, evaluate
+from .fit import FitConfig, fit
+from .least_squares import least_squares
+from .models import NeuralODE, Parametric
+
+__all__ = ["SysidConfig", "SysidReport", "run_sysid"]
+
+_MODELS = ("parametric", "node")
+_METHODS = ("least_squares", "adam")
+
+
+@dataclasses.dataclass(frozen=True)
+class SysidConfig:
+    """What to learn and how.
+
+    Attributes:
+        model: "parametric" (the spec's learnable parameters) or "node" (a Neural ODE).
+        method: "least_squares" (Levenberg-Marquardt, parametric only; the default there) or "adam" (the published
+            trajectory loss with optax; the only choice for Neural ODEs).
+        trajectories: training trajectories per dataset (validation and test: ``max(3, trajectories // 3)`` each).
+        rounds: datasets in sequence (Neural ODEs; 1 = a single dataset).
+        noise: observation noise as a fraction of the state range.
+        seed: everything random derives from it (same seed, same result on CPU).
+        hidden, activation: the Neural ODE's network.
+        fit: the optimiser settings for ``method="adam"``.
+        sampling: how trajectories are drawn (its ``noise`` is replaced by ``noise`` above).
+    """
+
+    model: str = "parametric"
+    method: str | None = None
+    trajectories: int = 10
+    rounds: int = 1
+    noise: float = 0.0
+    seed: int = 0
+    hidden: tuple[int, ...] = (100, 100)
+    activation: str = "sigmoid"
+    fit: FitConfig = FitConfig()
+    sampling: Sampling = Sampling()
+
+    def __post_init__(self):
+        if self.model not in _MODELS:
+            raise ValueError(f"SysidConfig(model={self.model!r}): expected one of {_MODELS}")
+        method = self.method or ("least_squares" if self.model == "parametric" else "adam")
+        if method not in _METHODS:
+            raise ValueError(f"SysidConfig(method={self.method!r}): expected one of {_METHODS}")
+        if self.model == "node" and method == "least_squares":
+            raise ValueError("SysidConfig: least squares fits parametric models only; a Neural ODE trains with adam")
+        object.__setattr__(self, "method", method)
+        if self.trajectories < 1 or self.rounds < 1:
+            raise ValueError("SysidConfig: trajectories and rounds must be at least 1")
+        if not (self.noise >= 0 and math.isfinite(self.noise)):
+            raise ValueError(f"SysidConfig: noise must be a finite fraction >= 0, got {self.noise}")
+        if self.seed < 0:
+            raise ValueError(f"SysidConfig: seed must be >= 0, got {self.seed}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SysidReport:
+    """The outcome: the learned parameters, how they were learned, and the plan judged on the true system."""
+
+    system: str
+    config: SysidConfig
+    model: Any
+    theta: Any
+    learned: dict[str, float]
+    true: dict[str, float]
+    standard_errors: dict[str, float]
+    unidentifiable: tuple[str, ...]
+    fit_status: str
+    fit_message: str
+    train_seconds: float
+    evaluation: Evaluation
+    history: list
+    dataset: Dataset
+    rounds: int
+
+    @property
+    def converged(self) -> bool:
+        return self.fit_status in ("converged", "early_stopping", "max_epochs") and self.evaluation.converged
+
+    def record(self) -> dict[str, Any]:
+        ev = self.evaluation.record()
+        return {
+            "system": self.system, "model": self.config.model, "method": self.config.method,
+            "learned": self.learned, "true": self.true, "standard_errors": self.standard_errors,
+            "unidentifiable": list(self.unidentifiable),
+            "achieved_cost": ev["achieved_cost"], "achieved_defect": ev["achieved_defect"],
+            "optimal_cost": ev["optimal_cost"], "optimal_defect": ev["optimal_defect"],
+            "achieved_simulated_cost": ev["achieved_simulated_cost"], "relative_gap": ev["relative_gap"],
+            "plan_status": ev["plan_status"], "train_seconds": round(self.train_seconds, 3),
+            "seed": self.config.seed, "noise": self.config.noise, "trajectories": self.config.trajectories,
+            "rounds": self.rounds, "fit_status": self.fit_status, "fit_message": self.fit_message,
+            "converged": bool(self.converged), "message": failed(self) or ev["message"],
+        }
+
+
+def _merge(a: Dataset, b: Dataset) -> Dataset:
+    """The union of two datasets on the same grid (each split concatenated)."""
+    cat = lambda x, y: Trajectories(*(np.concatenate([p, q]) for p, q in zip(x, y)))  # noqa: E731
+    return dataclasses.replace(a, train=cat(a.train, b.train), validation=cat(a.validation, b.validation),
+                               test=cat(a.test, b.test))
+
+
+def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidConfig(), *,
+              checkpoint_dir: str | os.PathLike | None = None, resume: bool = False, progress: bool | None = None,
+              transcription=None, solver=None) -> SysidReport:
+    """Sample, fit, plan and judge (see the module docstring); ``transcription`` and ``solver`` set the planning
+    setting (default: the published one)."""
+    system = system if isinstance(system, System) else load(system)
+    if config.model == "parametric":
+        model = Parametric(system)  # refuses a system without learnable parameters, before any work
+    else:
+        model = NeuralODE(system, hidden=tuple(config.hidden), activation=config.activation)
+    sampling = dataclasses.replace(config.sampling, noise=config.noise)
+    held = max(3, config.trajectories // 3)
+    sizes = (config.trajectories, held, held)
+    dataset = make_dataset(system, sampling, trajectories=sizes, seed=config.seed)
+    optimum = solve(system, transcription, solver, resimulate=False)
+    theta, history, seconds = None, [], 0.0
+    standard_errors, unidentifiable, status, message = {}, (), "converged", ""
+    evaluation = None
+    for r in range(config.rounds):
+        if r:
+            around = np.asarray(evaluation.plan.controls)
+            if around.shape[0] != dataset.intervals + 1:
+                raise ValueError("datasets in sequence need a planning grid equal to the data grid "
+                                 f"({dataset.intervals} intervals); the plan has {around.shape[0] - 1}")
+            more = make_dataset(system, dataclasses.replace(sampling, controls="around"), trajectories=sizes,
+                                seed=config.seed + r, around=around)
+            dataset = _merge(dataset, more)
+        t0 = time.perf_counter()
+        if config.method == "least_squares":
+            ls = least_squares(model, dataset, theta0=theta)
+            theta = {k: jax.numpy.asarray(v) for k, v in ls.theta.items()}
+            standard_errors = {k: float(v) for k, v in ls.standard_errors.items()}
+            unidentifiable, status = tuple(ls.unidentifiable), "converged" if ls.converged else str(ls.status)
+            message = ls.message
+        else:
+            where = None if checkpoint_dir is None else Path(checkpoint_dir) / f"round{r}"
+            fr = fit(model, dataset, config.fit, theta0=theta, checkpoint_dir=where, resume=resume, progress=progress)
+            theta, status, message = fr.theta, fr.stopped, fr.message
+            history += [(e + (r and history[-1][0]), tl, vl) for e, tl, vl in fr.history]
+        seconds += time.perf_counter() - t0
+        evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum)
+    learned, true = {}, {}
+    if config.model == "parametric":
+        learned = {k: float(v) for k, v in theta.items()}
+        true = {k: float(v) for k, v in model.true_params().items()}
+    return SysidReport(system=system.name, config=config, model=model, theta=theta, learned=learned, true=true,
+                       standard_errors=standard_errors, unidentifiable=unidentifiable, fit_status=status,
+                       fit_message=message, train_seconds=seconds, evaluation=evaluation, history=history,
+                       dataset=dataset, rounds=config.rounds)
+
+
+def failed(report: SysidReport) -> str | None:
+    """Why the experiment failed, or None."""
+    if report.fit_status not in ("converged", "early_stopping", "max_epochs"):
+        return f"the fit stopped: {report.fit_status} ({report.fit_message})"
+    if not report.evaluation.converged:
+        return report.evaluation.message
+    return None
+
