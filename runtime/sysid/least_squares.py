@@ -26,12 +26,13 @@ results are in the original units. ``min_p 1/2 ||r(c p)||^2`` is one ``optimisti
 (Levenberg-Marquardt: Gauss-Newton steps J^T J dp = -J^T r regularised by a trust region), jit-compiled once per
 (model, integrator, shapes, options).
 
-Standard errors come from the Gauss-Newton Hessian at the solution. With J = dr/dp (forward mode), m residuals
-(w > 0) and K unknowns (P parameters, plus the starts), sigma^2 = RSS / (m - K) and Cov(p) = sigma^2 (J^T J)^-1 =
-sigma^2 V S^-2 V^T from the SVD J = U S V^T, so Cov(theta) = C Cov(p)_{PxP} C with C = diag(c). Singular values
-below ``rcond * max(S)`` are directions in which the residuals do not change: a parameter with a component above
-``null_tol`` in them has unbounded variance, so it is listed in ``unidentifiable`` with a NaN standard error (and
-NaN covariance row) instead of a confident wrong number; the others' covariance is V_r S_r^-2 V_r^T over the rest.
+Standard errors come from the Gauss-Newton Hessian at the solution. With J = dr/dp (forward mode; reverse mode for
+data from an adaptive integrator, slower to compile), m residuals (w > 0) and K unknowns (P parameters, plus the
+starts), sigma^2 = RSS / (m - K) and Cov(p) = sigma^2 (J^T J)^-1 = sigma^2 V S^-2 V^T from the SVD J = U S V^T, so
+Cov(theta) = C Cov(p)_{PxP} C with C = diag(c). Singular values below ``rcond * max(S)`` are directions in which the
+residuals do not change: a parameter with a component above ``null_tol`` in them has unbounded variance, so it is
+listed in ``unidentifiable`` with a NaN standard error (and NaN covariance row) instead of a confident wrong number;
+the others' covariance is V_r S_r^-2 V_r^T over the remaining directions r.
 On noise-free data sigma^2 ~ 0, and so are the standard errors.
 """
 
@@ -67,14 +68,13 @@ class LeastSquaresResult:
         names: the parameter names in the order of ``covariance``.
         residual_norm: ||r|| at the solution (scaled residuals, see the module docstring).
         n_obs, dof, sigma2: the residuals m that count (w > 0), m - K, and RSS / (m - K) (NaN when m <= K).
-        converged, status, message: whether Levenberg-Marquardt met its tolerances, as a
-            :class:`~myriad.runtime.status.Status`, and why (with any identifiability warning).
+        converged, status, message: whether Levenberg-Marquardt met its tolerances (and, on noise-free data, fits
+            them), as a :class:`~myriad.runtime.status.Status`, and why (with any identifiability warning).
         steps: Levenberg-Marquardt steps taken (accepted or not).
         unidentifiable: the names the data cannot identify (``message`` gives the direction).
         singular_values: of J = dr/dp (scaled parameters, then the starts), descending.
         seconds: wall time, compilation included.
-        method: "single_shooting" or "multiple_shooting".
-        starts: (B, n) the fitted starts with ``fit_starts``, else None.
+        method, starts: the method, and the fitted starts (B, n) with ``fit_starts`` (else None).
     """
 
     theta: dict[str, float]
@@ -117,9 +117,8 @@ def _predict(model, integrator, window, theta, spec, times, starts, x_obs, u_obs
     u_pad = jnp.concatenate([u_obs, jnp.repeat(u_obs[:, -1:], pad, axis=1)], axis=1)
     idx = np.arange(n_win)[:, None] * window + np.arange(window + 1)[None, :]  # (W, w + 1) node indices
     t_win = t0 + jnp.arange(n_win, dtype=times.dtype) * (window * h)
-    one = lambda x0, tw, us: rollout(integrator, f, x0, tw, h, us)  # noqa: E731
-    xs = jax.vmap(jax.vmap(one, in_axes=(0, 0, 0)), in_axes=(0, None, 0))(x_obs[:, ::window][:, :n_win], t_win,
-                                                                           u_pad[:, idx])
+    one = jax.vmap(lambda x0, tw, us: rollout(integrator, f, x0, tw, h, us))  # the windows of one trajectory
+    xs = jax.vmap(one, in_axes=(0, None, 0))(x_obs[:, ::window][:, :n_win], t_win, u_pad[:, idx])
     return jnp.concatenate([x_obs[:, :1], xs[:, :, 1:].reshape(n_batch, n_win * window, n)[:, :n_steps]], axis=1)
 
 
@@ -142,14 +141,15 @@ def _solve(p0, c, state_scale, spec, times, x_obs, u_obs, weights, *, model, int
         pred = _predict(model, integrator, window, theta, spec, times, starts, x_obs, u_obs)
         return ((pred - x_obs) * weights).ravel()
 
-    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
-    sol = optx.least_squares(residuals, solver, p0, max_steps=max_steps, throw=False)
+    jac = "fwd" if integrator.fixed_step else "bwd"  # an adaptive (diffrax) rollout has reverse-mode derivatives only
+    sol = optx.least_squares(residuals, optx.LevenbergMarquardt(rtol=rtol, atol=atol), p0, options={"jac": jac},
+                             max_steps=max_steps, throw=False)
     code = jnp.asarray(int(Status.NOT_CONVERGED))
     for results, status in _RESULTS:
         code = jnp.where(sol.result == results, int(status), code)
     start_ok = jnp.all(jnp.isfinite(residuals(p0, None).reshape(x_obs.shape[0], -1)), axis=1)  # per trajectory
-    return (sol.value, residuals(sol.value, None), jax.jacfwd(residuals)(sol.value, None), code,
-            sol.stats["num_steps"], start_ok)
+    jacobian = (jax.jacfwd if jac == "fwd" else jax.jacrev)(residuals)(sol.value, None)
+    return sol.value, residuals(sol.value, None), jacobian, code, sol.stats["num_steps"], start_ok
 
 
 def _state_scale(system, x_fit: np.ndarray, scale) -> np.ndarray:
@@ -158,8 +158,10 @@ def _state_scale(system, x_fit: np.ndarray, scale) -> np.ndarray:
         s = system.arrays()["x_upper"] - system.arrays()["x_lower"]
         s = np.where(np.isfinite(s) & (s > 0), s, np.max(np.abs(x_fit).reshape(-1, n), axis=0))
         return np.where(s > 0, s, 1.0)
-    s = np.ones(n) if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,)).copy() \
-        if not isinstance(scale, str) else np.full(n, np.nan)
+    try:
+        s = np.ones(n) if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,)).copy()
+    except ValueError:  # another string, or the wrong length
+        s = np.full(n, np.nan)
     if not (np.all(np.isfinite(s)) and np.all(s > 0)):
         raise ValueError(f"least_squares: scale must be 'range', None or {n} positive numbers, got {scale!r}")
     return s
@@ -173,19 +175,16 @@ def _check(model, dataset, method, window, n_steps, fit_starts) -> None:
     if sha is not None and sha != system.spec_sha256:
         raise ValueError(f"least_squares: the dataset's spec (sha256 {sha}) is not the model's {system.name!r} "
                          f"({system.spec_sha256}): regenerate the dataset for this spec")
-    tr = dataset.train
-    if np.ndim(tr.states) != 3 or np.shape(tr.states)[2] != system.n_states \
-            or np.shape(tr.controls)[2] != system.n_controls:
+    xs, us = np.shape(dataset.train.states), np.shape(dataset.train.controls)
+    if len(xs) != 3 or len(us) != 3 or (xs[2], us[2]) != (system.n_states, system.n_controls):
         raise ValueError(f"least_squares: {system.name} needs states (B, N+1, {system.n_states}) and controls (B, N+1, "
-                         f"{system.n_controls}), the dataset has {np.shape(tr.states)} and {np.shape(tr.controls)}")
+                         f"{system.n_controls}), the dataset has {xs} and {us}")
     if method not in METHODS:
         raise ValueError(f"least_squares: method must be one of {METHODS}, got {method!r}")
     if method == "multiple_shooting" and not (isinstance(window, int) and 1 <= window <= n_steps):
-        raise ValueError(f"least_squares: window must be an integer from 1 to the grid's {n_steps} steps, "
-                         f"got {window!r}")
+        raise ValueError(f"least_squares: window must be an integer in [1, {n_steps}] (grid steps), got {window!r}")
     if method == "multiple_shooting" and fit_starts:
-        raise ValueError("least_squares: fit_starts is for single shooting (each multiple-shooting window starts at "
-                         "an observation)")
+        raise ValueError("least_squares: fit_starts is for single shooting (windows start at observations)")
 
 
 def _direction(v: np.ndarray, names: tuple[str, ...], tol: float) -> str:
@@ -217,20 +216,21 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         null_tol: a parameter with a larger component in those directions is reported unidentifiable.
 
     Raises:
-        ValueError: a dataset of another system or spec, wrong shapes, unknown ``theta0`` names, an unknown method
-            or a bad window.
+        ValueError: a dataset of another system or spec, wrong shapes, a model with non-scalar parameters (a Neural
+            ODE: use ``fit``), unknown ``theta0`` names, an unknown method or a bad window.
     """
     start = time.perf_counter()
     system = model.system
-    theta_start = {k: float(v) for k, v in model.init_params(jax.random.PRNGKey(0)).items()}
-    unknown = sorted(set(theta0 or {}) - set(theta_start))
-    if unknown:
-        raise ValueError(f"least_squares: {system.name} theta0 names {unknown} are not the model's {list(theta_start)}")
-    theta_start.update({k: float(v) for k, v in (theta0 or {}).items()})
-    names = tuple(theta_start)
+    guess = model.init_params(jax.random.PRNGKey(0))
+    if not isinstance(guess, dict) or any(np.ndim(v) for v in guess.values()):
+        raise ValueError(f"least_squares: fits a Parametric model's scalar parameters, not a {type(model).__name__}")
+    theta_start = {k: float(v) for k, v in {**guess, **(theta0 or {})}.items()}
+    if set(theta_start) != set(guess):
+        raise ValueError(f"least_squares: {system.name} theta0 names {sorted(set(theta_start) - set(guess))} are not "
+                         f"the model's {list(guess)}")
+    names = tuple(guess)
     n_steps = int(np.shape(dataset.times)[0]) - 1
-    if method == "multiple_shooting" and window is None:
-        window = max(1, n_steps // 10)
+    window = max(1, n_steps // 10) if method == "multiple_shooting" and window is None else window
     sampling = getattr(dataset, "sampling", None)
     noisy = getattr(sampling, "noise", 0.0) > 0
     fit_starts = noisy and method == "single_shooting" if fit_starts is None else fit_starts
@@ -252,7 +252,6 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     p0 = np.where(g != 0, 1.0, 0.0)
     if fit_starts:  # the starts, divided by the state scale, after the parameters
         p0 = np.concatenate([p0, (x_obs[:, 0] / s).ravel()])
-
     p, r, jac, code, steps, start_ok = (np.asarray(a) for a in _solve(
         jnp.asarray(p0), jnp.asarray(c), jnp.asarray(s), system.default_params(jnp.float64),
         jnp.asarray(dataset.times, dtype=jnp.float64), jnp.asarray(x_obs), jnp.asarray(u_obs), jnp.asarray(weights),
@@ -286,6 +285,10 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         message += (f"; the data cannot identify: {', '.join(unidentifiable)} (the residuals do not change along "
                     f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {rcond:g} x "
                     f"{np.max(sv):.2e}); their standard errors are NaN")
+    if finite and not noisy and status is Status.CONVERGED and rss > 1e-12 * n_obs:  # exact data, no fit
+        status, message = Status.NOT_CONVERGED, message + (
+            f"; stalled at RMS scaled residual {math.sqrt(rss / n_obs):.1e} on noise-free data (a local minimum; the "
+            f"standard errors mean nothing there): try method='multiple_shooting' or another theta0")
     return LeastSquaresResult(
         theta={k: float(x) for k, x in zip(names, c * p[:n_par])},
         standard_errors={k: float(math.sqrt(cov[i, i])) if np.isfinite(cov[i, i]) else math.nan

@@ -154,7 +154,14 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             dataset = _merge(dataset, more)
         t0 = time.perf_counter()
         if config.method == "least_squares":
-            ls = least_squares(model, dataset, theta0=theta)
+            # Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local
+            # minimum like Mountain Car's), then single shooting from there (honest standard errors on noisy data).
+            ms = least_squares(model, dataset, theta0=theta, method="multiple_shooting")
+            start = ms.theta if all(math.isfinite(v) for v in ms.theta.values()) else theta
+            ls = least_squares(model, dataset, theta0=start)
+            if not ls.converged and ms.converged:
+                ls = dataclasses.replace(ms, message=f"{ms.message} (multiple shooting; the single-shooting "
+                                                     f"refinement did not converge: {ls.message})")
             theta = {k: jax.numpy.asarray(v) for k, v in ls.theta.items()}
             standard_errors = {k: float(v) for k, v in ls.standard_errors.items()}
             unidentifiable, status = tuple(ls.unidentifiable), "converged" if ls.converged else str(ls.status)
