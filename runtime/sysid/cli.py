@@ -22,12 +22,15 @@ def add_parser(sub) -> None:
     s.add_argument("--method", choices=["least_squares", "adam"], default=None,
                    help="least_squares (parametric default) or adam on the trajectory loss (Neural ODE default)")
     s.add_argument("--trajectories", type=int, default=10, metavar="N", help="training trajectories per dataset")
-    s.add_argument("--rounds", type=int, default=1, metavar="K",
-                   help="datasets in sequence: train, plan, sample around the plan, retrain (default 1)")
+    s.add_argument("--rounds", type=int, default=None, metavar="K",
+                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 3 for a "
+                        "Neural ODE, 1 for a parametric model)")
     s.add_argument("--noise", type=float, default=0.0, metavar="F", help="observation noise, fraction of the range")
     s.add_argument("--seed", type=int, default=0, metavar="S")
     s.add_argument("--epochs", type=int, default=None, metavar="E", help="adam: the most epochs (default 1000)")
     s.add_argument("--hidden", type=int, nargs="+", default=[100, 100], metavar="W", help="Neural ODE widths")
+    s.add_argument("--activation", choices=["tanh", "sigmoid", "softplus", "relu"], default="tanh",
+                   help="Neural ODE activation (the published one is sigmoid)")
     s.add_argument("--json", metavar="FILE", help="write the record as JSON")
     s.add_argument("--plots", metavar="DIR", help="loss curve, learned vs true trajectories, vector field (PNG)")
     s.add_argument("--checkpoint", metavar="DIR", help="adam: write checkpoints here")
@@ -40,10 +43,9 @@ def _usage(message: str) -> int:
 
 
 def run(args) -> int:
-    import dataclasses
 
     from .fit import FitConfig
-    from .run import SysidConfig, failed, run_sysid
+    from .run import SysidConfig, failed, node_fit_config, run_sysid
 
     if args.resume and not args.checkpoint:
         return _usage("--resume needs --checkpoint DIR")
@@ -53,9 +55,12 @@ def run(args) -> int:
         if path and not Path(path).resolve().parent.is_dir():
             return _usage(f"the folder of {path} does not exist")
     try:
-        fit = FitConfig() if args.epochs is None else dataclasses.replace(FitConfig(), epochs=args.epochs)
+        fit = None
+        if args.epochs is not None:
+            fit = node_fit_config(args.epochs) if args.model == "node" else FitConfig(epochs=args.epochs)
         config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
-                             rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden), fit=fit)
+                             rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden),
+                             activation=args.activation, fit=fit)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load
