@@ -69,7 +69,7 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     Raises:
         ValueError: no batch axis, or batch sizes that differ between the arguments.
     """
-    params = params or {}
+    params = {k: _leaves(v, _dtype()) for k, v in (params or {}).items()}
     sizes = {int(np.shape(a)[0]) if np.ndim(a) else -1 for a in jax.tree.leaves(params)}
     if x0 is not None:
         sizes.add(int(np.shape(x0)[0]) if np.ndim(x0) > 1 else -1)
@@ -89,7 +89,10 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
 
 
 def _leaves(value: Any, dtype) -> Any:
-    """Every leaf of a parameter value (a number, an array, or a pytree such as a network) as a ``dtype`` array."""
+    """A parameter value (a number, an array or a list of numbers, or a pytree such as a network) with every leaf a
+    ``dtype`` array. A list or tuple is one array, as ``jnp.asarray`` reads it, not a pytree of scalars."""
+    if isinstance(value, (list, tuple)):
+        return jnp.asarray(value, dtype=dtype)
     return jax.tree.map(lambda a: jnp.asarray(a, dtype=dtype), value)
 
 
