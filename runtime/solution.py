@@ -19,7 +19,7 @@ from .simulate import simulate
 from .status import Status
 from .system import System
 
-__all__ = ["Solution", "resimulate"]
+__all__ = ["Solution", "json_number", "resimulate"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,17 +72,20 @@ class Solution:
         """A JSON-ready dict (no arrays), one record of the bench's JSON."""
         return {
             "system": self.system, "transcription": self.transcription, "solver": self.solver,
-            "integrator": self.integrator, "cost": _num(self.cost), "defect": [_num(d) for d in self.defect],
+            "integrator": self.integrator, "cost": json_number(self.cost),
+            "defect": [json_number(d) for d in self.defect],
             "converged": bool(self.converged), "status": str(self.status), "solver_code": int(self.solver_code),
             "message": self.message,
-            "iterations": int(self.iterations), "constraint_violation": _num(self.constraint_violation),
-            "simulated_cost": _num(self.simulated_cost), "simulated_defect": [_num(d) for d in self.simulated_defect],
-            "simulated_bound_violation": _num(self.simulated_bound_violation),
+            "iterations": int(self.iterations), "constraint_violation": json_number(self.constraint_violation),
+            "simulated_cost": json_number(self.simulated_cost),
+            "simulated_defect": [json_number(d) for d in self.simulated_defect],
+            "simulated_bound_violation": json_number(self.simulated_bound_violation),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }
 
 
-def _num(v) -> float | None:
+def json_number(v) -> float | None:
+    """``v`` as a float, or None where it is not finite (JSON has no NaN or inf)."""
     v = float(v)
     return v if math.isfinite(v) else None  # JSON has no NaN/inf
 

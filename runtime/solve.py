@@ -14,7 +14,8 @@ from typing import Any
 from .data import batch_data, default_data
 from .loader import load
 from .method import AbstractMethod
-from .solution import Solution, resimulate
+from .solution import Solution
+from .solution import resimulate as _resimulate  # solve() has a keyword argument `resimulate`
 from .system import System
 from .transcriptions import SingleShooting
 from .transcriptions.base import transcribe
@@ -69,9 +70,6 @@ def solve(
         sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect,
                                   simulated_bound_violation=violation)
     return sol
-
-
-_resimulate = resimulate  # the keyword argument of solve() shadows the function's name inside it
 
 
 def solve_batch(

@@ -9,7 +9,6 @@ that did not converge is reported as such, with the solver's reason, never as a 
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 import numpy as np
@@ -17,7 +16,7 @@ import numpy as np
 from ..data import default_data
 from ..integrators import Heun
 from ..simulate import simulate
-from ..solution import Solution, resimulate
+from ..solution import Solution, json_number, resimulate
 from ..solve import solve
 from ..system import System
 from .models.base import AbstractModel
@@ -57,7 +56,7 @@ class Evaluation:
         return max((abs(d) for d in self.achieved_defect), default=0.0)
 
     def record(self) -> dict[str, Any]:
-        num = _num
+        num = json_number
         return {
             "achieved_cost": num(self.achieved_cost), "achieved_defect": [num(d) for d in self.achieved_defect],
             "achieved_simulated_cost": num(self.achieved_simulated_cost),
@@ -67,11 +66,6 @@ class Evaluation:
             "plan_status": str(self.plan.status), "plan_message": self.plan.message,
             "converged": bool(self.converged), "message": self.message,
         }
-
-
-def _num(v) -> float | None:
-    v = float(v)
-    return v if math.isfinite(v) else None
 
 
 def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=None,
