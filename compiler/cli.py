@@ -53,6 +53,16 @@ def _parser() -> argparse.ArgumentParser:
     ls.add_argument("paths", nargs="*", metavar="PATH")
     s = sub.add_parser("show", help="the equations as compiled, with the derived costates and u*")
     s.add_argument("target", metavar="NAME|PATH")
+    cd = sub.add_parser("card", help="problem cards: Markdown pages of the equations, variables, optimality "
+                        "conditions and recorded reference results")
+    cd.add_argument("targets", nargs="+", metavar="NAME|PATH", help="shipped names, spec files or folders of *.yaml")
+    cd.add_argument("-o", "--out", metavar="DIR",
+                    help="write DIR/NAME.md per spec, and DIR/README.md (an index) for a folder; default: print the "
+                         "one card")
+    cd.add_argument("--check", action="store_true",
+                    help="with -o: write nothing; exit 1 and print the diff if cards are stale or a plot is missing")
+    cd.add_argument("--results", metavar="FILE", help="recorded results (default: DIR/results.json with -o, else "
+                    "the repository's docs/cards/results.json when there is one)")
     return p
 
 
@@ -163,6 +173,39 @@ def _cmd_show(args) -> int:
     return 0
 
 
+def _cmd_card(args) -> int:
+    from .card import build_cards, card_file  # sympy's LaTeX printer is only needed here
+
+    targets = [t if Path(t).is_dir() else _resolve(t) for t in args.targets]
+    if args.out is None:
+        if args.check or len(spec_files(targets)) != 1:
+            print("myriadc: error: --check and several specs need -o DIR", file=sys.stderr)
+            return 2
+        sys.stdout.write(card_file(spec_files(targets)[0], args.results))
+        return 0
+    t0 = time.perf_counter()
+    result = build_cards(targets, args.out, check=args.check, results_path=args.results)
+    if result.errors:
+        _report(result.errors)
+        return 1
+    if args.check:
+        for d in result.diffs:
+            sys.stdout.write(d)
+        if result.stale:
+            print(f"myriadc: stale: {', '.join(result.stale)}; run `myriadc card {' '.join(args.targets)} -o "
+                  f"{args.out}` (results and plots: `python bench/cards.py`)", file=sys.stderr)
+            return 1
+        if not args.quiet:
+            print(f"myriadc: {len(result.unchanged)} cards up to date ({time.perf_counter() - t0:.2f} s)")
+        return 0
+    if not args.quiet:
+        for w in result.written:
+            print(f"wrote {w}")
+        print(f"myriadc: {len(result.written)} written, {len(result.unchanged)} unchanged "
+              f"({time.perf_counter() - t0:.2f} s)")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
@@ -170,7 +213,8 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
-        return {"build": _cmd_build, "check": _cmd_check, "list": _cmd_list, "show": _cmd_show}[args.command](args)
+        commands = {"build": _cmd_build, "check": _cmd_check, "list": _cmd_list, "show": _cmd_show, "card": _cmd_card}
+        return commands[args.command](args)
     except (SpecError, SpecErrors) as exc:
         _report(exc.errors if isinstance(exc, SpecErrors) else [exc])
         return 1
