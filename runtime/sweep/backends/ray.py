@@ -1,0 +1,68 @@
+"""``ray``: the tasks on a Ray cluster (``--backend ray [--address ADDR]``; Ray is the optional extra ``ray``).
+
+Without an address a private local cluster is started for the sweep and stopped after it; with one (``auto``, or
+``HOST:PORT`` of ``ray start --head``) the sweep connects to that cluster. Every node needs this package installed
+(the workers import ``myriad``); Ray starts its workers as fresh processes, so JAX is never forked. Each task asks
+for one CPU; ``workers`` caps how many run at once.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, ClassVar, Iterator, Sequence
+
+from ..tasks import error_record, run
+from .base import AbstractBackend
+
+__all__ = ["RayBackend"]
+
+
+class RayBackend(AbstractBackend):
+    """Args:
+        address: a cluster to connect to; None: start a local one for this sweep.
+        workers: the most tasks in flight at once (default: all; the cluster's CPUs then decide).
+    """
+
+    name: ClassVar[str] = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None):
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise ValueError(f"ray backend: workers must be an integer >= 1, got {workers!r}")
+        self.address = address
+        self.workers = workers
+
+    def check(self) -> None:
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("the ray backend needs Ray: pip install 'myriad-control[ray]'") from None
+
+    def map(self, tasks: Sequence[dict[str, Any]]) -> Iterator[dict[str, Any]]:
+        self.check()
+        import ray
+
+        owner = not ray.is_initialized()
+        if owner:
+            # Worker output stays in the cluster's logs: a task's failure is in its record, and the table is not
+            # interleaved with solver chatter.
+            options = {"logging_level": logging.WARNING, "log_to_driver": False}
+            if self.address is None:
+                options.update(include_dashboard=False, num_cpus=self.workers)
+            ray.init(address=self.address, **options)
+        try:
+            remote = ray.remote(num_cpus=1)(run)
+            queue, pending = list(tasks), {}
+            while queue or pending:
+                while queue and (self.workers is None or len(pending) < self.workers):
+                    task = queue.pop(0)
+                    pending[remote.remote(task)] = task
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    task = pending.pop(ref)
+                    try:
+                        yield ray.get(ref)
+                    except Exception as exc:  # the worker or its node died (run itself never raises)
+                        yield error_record(task, exc)
+        finally:
+            if owner:
+                ray.shutdown()

@@ -1,0 +1,71 @@
+"""What a kind of sweep method is: checked settings, an optional check against a system, and one run.
+
+A kind is one file (a final subclass of :class:`AbstractKind` with a frozen ``Settings`` dataclass) plus one line in
+``KINDS`` (``kinds/__init__.py``); see the sweep README.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import json
+from typing import Any, ClassVar, Mapping
+
+from ...system import System
+
+__all__ = ["AbstractKind", "Outcome", "RESERVED"]
+
+# The task's own fields: a kind's ``Outcome.fields`` may not use these names (the run fails loudly if it does).
+RESERVED = frozenset({"index", "system", "method", "kind", "seed", "settings", "status", "message", "error_type",
+                      "traceback", "wall_seconds", "host", "pid"})
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """One run's result: ``success`` (False for anything that did not converge or missed its goal), a one-line
+    ``message`` (the reason, when not a success), and the kind's JSON-ready ``fields`` of the record."""
+
+    success: bool
+    message: str
+    fields: dict[str, Any]
+
+
+class AbstractKind(abc.ABC):
+    """A way to run one (system, settings, seed) task.
+
+    Class attributes:
+        name: the registry name (the ``KIND`` of ``--method KIND:...``).
+        Settings: a frozen dataclass with a default for every field; its ``__post_init__`` raises ``ValueError`` for
+            a bad value, without loading any system, so that a sweep is checked before any work.
+        columns: the record fields the printed (Markdown) table shows for this kind; the JSON and CSV have them all.
+    """
+
+    name: ClassVar[str]
+    Settings: ClassVar[type]
+    columns: ClassVar[tuple[str, ...]]
+
+    def check(self, settings: Mapping[str, Any]) -> dict[str, Any]:
+        """The settings completed with the defaults, as JSON-native values (lists, not tuples).
+
+        Raises:
+            ValueError: an unknown name (the known ones are listed) or a bad value.
+        """
+        known = [f.name for f in dataclasses.fields(self.Settings)]
+        unknown = sorted(set(settings) - set(known))
+        if unknown:
+            raise ValueError(f"{self.name}: unknown settings {unknown}; known: {', '.join(known)}")
+        try:
+            parsed = self.Settings(**settings)
+        except TypeError as exc:  # e.g. a list where a number belongs, inside the dataclass's own checks
+            raise ValueError(f"{self.name}: {exc}") from None
+        # Through JSON once, so a record's settings are the same objects on every backend and in the written file.
+        return json.loads(json.dumps(dataclasses.asdict(parsed)))
+
+    def check_system(self, system: System, settings: dict[str, Any]) -> None:
+        """Raise ``ValueError`` if these (checked) settings cannot run on ``system`` (e.g. it has nothing to learn).
+        Called on the driver before any work; the default accepts every system."""
+
+    @abc.abstractmethod
+    def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:
+        """Run once. ``settings`` are as :meth:`check` returned them; everything random derives from ``seed``.
+        An exception is fine: the task records it as an error."""

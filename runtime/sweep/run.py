@@ -1,0 +1,58 @@
+"""Run a sweep: every task of a :class:`~.config.SweepConfig` on a backend, the records in table order.
+
+    records = run_sweep(SweepConfig(["simple_case", "van_der_pol"], ["solve", "sysid"], seeds=[0, 1]))
+    records = run_sweep(config, RayBackend(address="auto"))
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+from .backends import AbstractBackend, SerialBackend
+from .config import SweepConfig
+from .tasks import error_record
+
+__all__ = ["run_sweep"]
+
+
+class _NoBar:  # the progress bar when there is none
+    update = set_postfix_str = close = staticmethod(lambda *args: None)
+
+
+def _bar(progress: bool | None, total: int):
+    if not (sys.stderr.isatty() if progress is None else progress):
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc="sweep", unit="task", file=sys.stderr, dynamic_ncols=True)
+
+
+def run_sweep(config: SweepConfig, backend: AbstractBackend | None = None, *,
+              progress: bool | None = None) -> list[dict[str, Any]]:
+    """Every task's record (see :mod:`.tasks`), sorted by ``index`` (systems, then methods, then seeds).
+
+    Args:
+        config: what to run.
+        backend: where (default :class:`SerialBackend`, in this process).
+        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
+
+    Returns:
+        One record per task; a failed task's has ``status`` ``"failed"`` or ``"error"`` (nothing is raised for it).
+    """
+    backend = backend or SerialBackend()
+    tasks = config.tasks()
+    bar, records, bad = _bar(progress, len(tasks)), [], 0
+    try:
+        for record in backend.map(tasks):
+            records.append(record)
+            bad += record["status"] != "ok"
+            bar.update(1)
+            bar.set_postfix_str(f"{bad} not ok" if bad else "all ok")
+    finally:
+        bar.close()
+    seen = {r["index"] for r in records}
+    for task in tasks:  # a backend that lost a task must not make the table look complete
+        if task["index"] not in seen:
+            records.append(error_record(task, RuntimeError(f"the {backend.name} backend returned no record")))
+    return sorted(records, key=lambda r: r["index"])

@@ -1,0 +1,95 @@
+"""The records of a sweep as one table: Markdown (printed), CSV (every field) and JSON (every record, nested), each
+written atomically (a reader never sees half a file).
+
+The Markdown table shows ``system | method | seed | status``, then the ``columns`` of each kind present (in the
+order the kinds first appear), then ``wall s``; the message of every task that is not ``ok`` follows the table.
+The CSV has every field of every record (nested values as compact JSON). The JSON is
+``{"format": "myriad.sweep", "version": 1, "config": ..., "records": [...]}``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+from pathlib import Path
+from typing import Any, Sequence
+
+from ..sysid._atomic import atomic_write_text
+from .kinds import KINDS
+
+__all__ = ["columns", "csv_text", "json_text", "markdown", "write_tables"]
+
+FORMAT, VERSION = "myriad.sweep", 1
+LEADING = ("system", "method", "seed", "status")
+
+
+def columns(records: Sequence[dict[str, Any]]) -> list[str]:
+    """The Markdown table's columns for these records (module docstring)."""
+    out = list(LEADING)
+    for r in records:
+        for c in KINDS[r["kind"]].columns if r.get("kind") in KINDS else ():
+            if c not in out:
+                out.append(c)
+    return [*out, "wall_seconds"]
+
+
+def _cell(value: Any, column: str = "") -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.2f}" if column.endswith("_seconds") else f"{value:.6g}"
+    if isinstance(value, (list, dict)):
+        return json.dumps(value, separators=(",", ":"))
+    return str(value)
+
+
+def markdown(records: Sequence[dict[str, Any]]) -> str:
+    """The Markdown table, then one line per task that is not ``ok`` with its message."""
+    cols = columns(records)
+    head = [c[:-len("_seconds")] + " s" if c.endswith("_seconds") else c for c in cols]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
+    for r in records:
+        cells = [_cell(r.get(c), c).replace("|", "\\|").replace("\n", " ") for c in cols]
+        lines.append("| " + " | ".join(cells) + " |")
+    bad = [r for r in records if r.get("status") != "ok"]
+    if bad:
+        lines.append("")
+        lines += [f"- {r['system']} / {r['method']} / seed {r['seed']}: {r['status']}: {r.get('message', '')}"
+                  for r in bad]
+    return "\n".join(lines) + "\n"
+
+
+def csv_text(records: Sequence[dict[str, Any]]) -> str:
+    """Every field of every record, one row each (fields a record lacks are empty)."""
+    fields = list(LEADING)
+    for r in records:
+        fields += [k for k in r if k not in fields]
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
+    writer.writeheader()
+    for r in records:
+        writer.writerow({k: json.dumps(v, separators=(",", ":")) if isinstance(v, (list, dict)) else v
+                         for k, v in r.items()})
+    return buf.getvalue()
+
+
+def json_text(records: Sequence[dict[str, Any]], config: dict[str, Any] | None = None) -> str:
+    """The records (and the sweep's configuration record) as strict JSON (no NaN)."""
+    doc = {"format": FORMAT, "version": VERSION, "config": config, "records": list(records)}
+    return json.dumps(doc, indent=1, allow_nan=False) + "\n"
+
+
+def write_tables(records: Sequence[dict[str, Any]], *, json_path: str | os.PathLike | None = None,
+                 csv_path: str | os.PathLike | None = None, markdown_path: str | os.PathLike | None = None,
+                 config: dict[str, Any] | None = None) -> list[Path]:
+    """Write the tables asked for, each atomically; returns their paths."""
+    out = []
+    for path, text in ((json_path, lambda: json_text(records, config)), (csv_path, lambda: csv_text(records)),
+                       (markdown_path, lambda: markdown(records))):
+        if path is not None:
+            out.append(atomic_write_text(path, text()))
+    return out
