@@ -1,0 +1,247 @@
+"""The Gymnasium adapter: one env (:class:`MyriadEnv`) and a vector env (:class:`MyriadVectorEnv`), both thin shells
+over the jit-compiled functional core (:mod:`myriad.runtime.rl.env`), and the ids ``myriad/<Name>-v0``.
+
+    import gymnasium, myriad.runtime.rl                        # importing registers myriad/VanDerPol-v0, ...
+    env = gymnasium.make("myriad/VanDerPol-v0")
+    env = myriad.runtime.rl.make("my/spec.yaml", steps=50)     # any spec; options are EnvOptions fields
+    envs = gymnasium.make_vec("myriad/Pendulum-v0", num_envs=1024, vectorization_mode="vector_entry_point")
+
+Spaces are float32 ``Box``es. Actions are in [-1, 1] by default (``normalize_actions``; the map onto the control
+bounds is the core's, so the JAX env, this env and the vector env agree, and Gymnasium's checker, which inspects the
+unwrapped env, sees a normalised space); ``normalize_actions=False`` gives the control bounds in their own units, and
+``gymnasium.wrappers.RescaleAction(env, -1, 1)`` maps those back. A control without finite bounds needs
+``action_bound``: the env refuses to guess one. The observation space is the spec's state box plus [0, T] for the
+time to go, with float32's largest finite value where the spec gives no bound; the state bounds are constraints,
+not walls (see the core), so a policy that violates one is shown the state it reached.
+
+The episode ends with ``terminated`` at T, or ``truncated`` at ``max_steps``. No ``TimeLimit`` wrapper is registered:
+it would mark the step that reaches T as truncated too. The vector env resets in the same step
+(``AutoresetMode.SAME_STEP``): the observation that ended an episode is in ``info["final_obs"]`` (``_final_obs``
+marks the envs it is valid for).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+from ..data import batch_data
+from ..loader import load
+from ..system import System
+from ..systems import NAMES
+from .env import Env, EnvOptions
+from .render import draw_traces
+
+__all__ = ["MyriadEnv", "MyriadVectorEnv", "make", "env_id", "register_all"]
+
+_F32_MAX = float(np.finfo(np.float32).max)
+
+
+def env_id(name: str) -> str:
+    """The Gymnasium id of a shipped system: ``van_der_pol`` -> ``myriad/VanDerPol-v0`` (the generated class name)."""
+    return "myriad/" + "".join(part.capitalize() for part in name.split("_")) + "-v0"
+
+
+def _core(system: System | str, options: dict) -> Env:
+    env = Env(system if isinstance(system, System) else load(system), EnvOptions(**options))
+    lo, hi = env.action_bounds
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        free = [n for n, a, b in zip(env.system.control_names, lo, hi) if not np.isfinite(a) or not np.isfinite(b)]
+        raise ValueError(f"{env.system.name}: control(s) {', '.join(free)} have no finite bounds, and a Gymnasium "
+                         f"action space needs them: pass action_bound=B to limit each unbounded side to B in magnitude")
+    return env
+
+
+def _f32_box(lo: np.ndarray, hi: np.ndarray, shape: tuple[int, ...] | None = None) -> spaces.Box:
+    lo = np.clip(np.asarray(lo, np.float64), -_F32_MAX, _F32_MAX).astype(np.float32)
+    hi = np.clip(np.asarray(hi, np.float64), -_F32_MAX, _F32_MAX).astype(np.float32)
+    if shape is not None:
+        lo, hi = np.broadcast_to(lo, shape).copy(), np.broadcast_to(hi, shape).copy()
+    return spaces.Box(lo, hi, dtype=np.float32)
+
+
+_SCALARS = ("reward", "terminated", "truncated", "running_cost", "penalty", "bound_violation")
+
+
+# One compiled program per (system, options), shared by every env instance (gymnasium.make, check_env's remakes).
+@functools.cache
+def _single(env: Env):
+    def step(state, action, data):
+        # Everything the step returns packed into one vector: one device-to-host copy per step, not eleven.
+        obs, state, reward, terminated, truncated, info = env.step_env(state, action, data)
+        scalars = [reward, terminated, truncated, info["running_cost"], info["penalty"], info["bound_violation"]]
+        return jnp.concatenate([obs, jnp.stack([jnp.asarray(v, obs.dtype) for v in scalars]), info["control"]]), state
+
+    return jax.jit(env.reset), jax.jit(step)
+
+
+@functools.cache
+def _batched(env: Env):
+    return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
+
+
+def _dtype():
+    return jax.dtypes.canonicalize_dtype(np.float64)  # float64 under jax_enable_x64, else float32
+
+
+class MyriadEnv(gymnasium.Env):
+    """One system as a Gymnasium environment.
+
+    Args:
+        system: a shipped name, a spec path or a :class:`~myriad.runtime.system.System`.
+        render_mode: None or ``"rgb_array"`` (the state and control traces so far).
+        params: parameter values overriding the spec's.
+        x0: the start state (default: the spec's).
+        **options: :class:`~myriad.runtime.rl.env.EnvOptions` fields (``steps``, ``integrator``, ``substeps``,
+            ``max_steps``, ``start_noise``, ``penalty``, ``normalize_actions``, ``action_bound``).
+
+    Raises:
+        ValueError: a control without finite bounds and no ``action_bound``; an invalid option.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, system: System | str = "van_der_pol", *, render_mode: str | None = None,
+                 params: dict | None = None, x0: Any = None, **options):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.core = _core(system, options)
+        self.system = self.core.system
+        self.render_mode = render_mode
+        self.data = self.core.default_params(params, x0)
+        self.action_space = _f32_box(*self.core.action_bounds)
+        self.observation_space = _f32_box(*self.core.observation_bounds)
+        self._reset_fn, self._step_fn = _single(self.core)
+        self._state = None
+        self._over = False
+        self._history: tuple[list, list, list] = ([], [], [])
+
+    def _obs(self, obs) -> np.ndarray:
+        return np.asarray(obs, dtype=np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
+        obs, self._state = self._reset_fn(key, self.data)
+        self._over = False
+        self._history = ([0.0], [np.asarray(self._state.x, np.float64)], [])
+        return self._obs(obs), {}
+
+    def step(self, action):
+        if self._state is None or self._over:
+            raise RuntimeError("call reset() before step(): the episode has not started or is over")
+        action = np.asarray(action, dtype=_dtype()).reshape(self.action_space.shape)
+        packed, self._state = self._step_fn(self._state, action, self.data)
+        packed = np.asarray(packed, dtype=np.float64)
+        n = self.core.observation_size
+        obs, control = packed[:n], packed[n + len(_SCALARS):]
+        values = dict(zip(_SCALARS, packed[n:n + len(_SCALARS)].tolist()))
+        terminated, truncated = bool(values.pop("terminated")), bool(values.pop("truncated"))
+        self._over = terminated or truncated
+        times, states, controls = self._history
+        times.append(float(self.system.horizon) * len(times) / self.core.options.steps)
+        states.append(obs[:-1])
+        controls.append(control)
+        reward = values.pop("reward")
+        return self._obs(obs), reward, terminated, truncated, {**values, "control": control.copy()}
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        times, states, controls = self._history
+        if not states:
+            raise RuntimeError("call reset() before render()")
+        return draw_traces(self.system, np.asarray(times), np.stack(states),
+                           np.stack(controls) if controls else np.zeros((0, self.system.n_controls)))
+
+
+class MyriadVectorEnv(VectorEnv):
+    """``num_envs`` copies of a system stepped as one jit-compiled ``vmap`` of the functional core.
+
+    Args:
+        system: a shipped name, a spec path or a system.
+        num_envs: the batch size.
+        params: per-env parameter values, ``{name: (num_envs,) array}`` (names not given keep the spec's).
+        x0: (num_envs, n_states) start states (default: the spec's).
+        **options: :class:`~myriad.runtime.rl.env.EnvOptions` fields.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, system: System | str = "van_der_pol", num_envs: int = 1, *, params: dict | None = None,
+                 x0: Any = None, render_mode: str | None = None, **options):
+        if num_envs < 1:
+            raise ValueError(f"num_envs must be at least 1, got {num_envs}")
+        if render_mode is not None:
+            raise ValueError("MyriadVectorEnv does not render; make single envs with render_mode='rgb_array'")
+        self.core = _core(system, options)
+        self.num_envs = num_envs
+        if params or x0 is not None:
+            self.data = batch_data(self.core.system, params, x0)
+            size = jax.tree.leaves(self.data)[0].shape[0]
+            if size != num_envs:
+                raise ValueError(f"params/x0 hold {size} envs, num_envs is {num_envs}")
+        else:
+            one = self.core.default_params()
+            self.data = jax.tree.map(lambda a: jnp.broadcast_to(a, (num_envs, *jnp.shape(a))), one)
+        self.single_action_space = _f32_box(*self.core.action_bounds)
+        self.single_observation_space = _f32_box(*self.core.observation_bounds)
+        self.action_space = _f32_box(*self.core.action_bounds, shape=(num_envs, self.core.action_size))
+        self.observation_space = _f32_box(*self.core.observation_bounds,
+                                          shape=(num_envs, self.core.observation_size))
+        self._reset_fn, self._step_fn = _batched(self.core)
+        self._key = None
+        self._state = None
+
+    def _keys(self):
+        self._key, sub = jax.random.split(self._key)
+        return jax.random.split(sub, self.num_envs)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
+        obs, self._state = self._reset_fn(self._keys(), self.data)
+        return np.asarray(obs, np.float32), {}
+
+    def step(self, actions):
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions, dtype=_dtype()).reshape(self.action_space.shape)
+        obs, self._state, reward, terminated, truncated, info = self._step_fn(self._keys(), self._state, actions,
+                                                                              self.data)
+        obs, reward, terminated, truncated, info = jax.device_get((obs, reward, terminated, truncated, info))
+        out: dict[str, Any] = {"final_obs": np.asarray(info["final_observation"], np.float32),
+                               "_final_obs": terminated | truncated}
+        for name in ("running_cost", "penalty", "bound_violation", "control"):
+            out[name] = np.asarray(info[name], np.float64)
+            out["_" + name] = np.ones(self.num_envs, dtype=bool)
+        return np.asarray(obs, np.float32), np.asarray(reward, np.float64), terminated, truncated, out
+
+
+def make(system: System | str, **options) -> MyriadEnv:
+    """A :class:`MyriadEnv` for any system: a shipped name, a spec path (compiled on the fly) or a system object.
+
+    ``options`` are :class:`MyriadEnv`'s keywords (``render_mode``, ``params``, ``x0``) and the
+    :class:`~myriad.runtime.rl.env.EnvOptions` fields. Not wrapped (no order enforcing or passive checker, unlike
+    ``gymnasium.make``).
+    """
+    return MyriadEnv(system, **options)
+
+
+def register_all() -> list[str]:
+    """Register ``myriad/<Name>-v0`` for every shipped system (idempotent); returns the ids."""
+    ids = []
+    for name in NAMES:
+        ident = env_id(name)
+        if ident not in gymnasium.registry:
+            gymnasium.register(id=ident, entry_point="myriad.runtime.rl.gym:MyriadEnv",
+                               vector_entry_point="myriad.runtime.rl.gym:MyriadVectorEnv", kwargs={"system": name})
+        ids.append(ident)
+    return ids

@@ -1,0 +1,240 @@
+"""Model-predictive control: the trajectory optimiser as a closed-loop policy in the environment.
+
+    env = make_jax("van_der_pol", normalize_actions=False)
+    mpc = MPC(env, replan_every=10)                    # plans on the env's own discretisation, nominal parameters
+    ep = mpc.run(env.default_params())                 # one closed-loop episode
+    ep.cost, normalized_score("van_der_pol", ep.cost)
+
+Every ``replan_every`` steps the policy re-solves the problem that is left, from the state it observes at step k
+over the remaining grid [t_k, T], and plays the plan's controls until the next re-plan (a shrinking horizon: the
+problems have a fixed final time). Each re-plan is warm-started from the previous plan, whose controls for the
+steps k..N-1 are exactly the shifted plan.
+
+**The planning problem** is single shooting on the environment's own grid: the decisions are the N controls, held
+over their steps (zero-order hold), and the model is the environment's step itself (same integrator, substeps and
+running-cost quadrature) with the planner's parameters, so on the nominal model the plan's cost is the episode's.
+Its terminal part is either the environment's own (``terminal="penalty"``: phi(x_N) plus the quadratic penalty on
+missed final values and final-state bounds, so the planner minimises exactly J = -return; always feasible) or the
+published single shooting's (``terminal="constraint"``: phi(x_N), and the missed final values and final-state
+bounds as constraint rows; a re-plan can then be infeasible under mismatch or noise).
+
+**Why a fixed-size problem.** The transcriptions start at t = 0 with x(0) from the data and the spec's horizon,
+and an NLP's shapes are static: a problem shortened at every re-plan would compile a new program each time
+(N / replan_every compiles an episode). Here all N controls stay decisions and the start index k and start state
+x_k are *data*: the rollout starts at x_k, steps j < k leave the state and the cost untouched, and the controls
+already played (j < k) enter only through the decoupled term 1/2 sum_{j<k} ((u_j - u_j^prev) / s_u)^2, which is
+zero at the warm start and keeps IPOPT's Hessian regular there; it does not couple to the remaining decisions, so
+the minimiser over them is the shrinking-horizon problem's. One compiled program serves every re-plan of every
+episode of a system.
+
+**A failed re-plan** (IPOPT not converged, or a non-finite plan) is not used: the policy keeps playing the previous
+plan and counts the failure (``Episode.failures``).
+
+**Disturbances.** ``params`` of the planner may differ from the environment's (model mismatch; see
+:func:`mismatched_params`), and ``obs_noise`` adds ``obs_noise * s * N(0, 1)`` to the state the policy observes (s
+the state's nominal scale); the environment itself evolves with its own parameters and without noise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..data import ProblemData, check_structural_params
+from ..nlp import NLP
+from ..solvers import Ipopt
+from ..transcriptions._common import (bounded_free_states, control_scale, final_value_rows, guess_controls,
+                                      state_scale)
+from .env import Env, EnvState
+
+__all__ = ["MPC", "MPCEpisode", "mismatched_params"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MPCEpisode:
+    """One closed-loop episode.
+
+    Attributes:
+        cost: J = -return in the environment (its parameters, minimisation form): what ``normalized_score`` takes.
+        total: the return.
+        controls: (N, m) the controls applied.
+        states: (N + 1, n) the environment's true states.
+        replans: the re-plans solved (step 0 included).
+        failures: re-plans whose result was not used (not converged or not finite).
+        iterations: IPOPT iterations over all re-plans.
+        solve_seconds: wall time in the solver (compiling excluded).
+        compile_seconds: time spent compiling (the first episode of a system only).
+        wall_seconds: the whole episode.
+    """
+
+    cost: float
+    total: float
+    controls: np.ndarray
+    states: np.ndarray
+    replans: int
+    failures: int
+    iterations: int
+    solve_seconds: float
+    compile_seconds: float
+    wall_seconds: float
+
+
+def mismatched_params(env: Env, fraction: float, seed: int = 0) -> dict[str, Any]:
+    """The nominal parameters with each uncertain one scaled by 1 +- ``fraction`` (signs drawn from ``seed``).
+
+    The uncertain parameters are the spec's ``learnable`` ones (those system identification would fit), else every
+    parameter; structural ones (used by x0, bounds, final values or the horizon) are never changed.
+    """
+    system = env.system
+    p = {k: np.asarray(v, np.float64) for k, v in zip(system.param_names, system.param_values)}
+    names = [n for n in (system.learnable or system.param_names) if n not in system.structural_params]
+    signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(names))
+    return {**p, **{n: p[n] * (1.0 + fraction * s) for n, s in zip(names, signs)}}
+
+
+class MPC:
+    """A receding-horizon policy for ``env`` (see the module docstring).
+
+    Args:
+        env: the environment the policy acts in (actions normalised or not: the plan is in controls and mapped).
+        params: the planner's model parameters (a partial dict overrides the spec's; default: the spec's).
+        replan_every: re-plan at the steps 0, k, 2k, ... (1: every step).
+        terminal: ``"penalty"`` (the environment's terminal cost) or ``"constraint"`` (the published rows).
+        solver: an :class:`Ipopt` (default ``Ipopt(tol=1e-8)``).
+    """
+
+    def __init__(self, env: Env, params: dict | None = None, *, replan_every: int = 10,
+                 terminal: Literal["penalty", "constraint"] = "penalty", solver: Ipopt | None = None):
+        if replan_every < 1:
+            raise ValueError(f"MPC: replan_every must be at least 1, got {replan_every}")
+        if terminal not in ("penalty", "constraint"):
+            raise ValueError(f"MPC: terminal must be 'penalty' or 'constraint', got {terminal!r}")
+        self.env, self.replan_every, self.terminal = env, replan_every, terminal
+        self.solver = Ipopt(tol=1e-8) if solver is None else solver
+        penalty = env.options.penalty if terminal == "penalty" else 0.0
+        self.model = Env(env.system, dataclasses.replace(env.options, normalize_actions=False, max_steps=None,
+                                                         start_noise=0.0, penalty=penalty))
+        if params is not None:
+            check_structural_params(env.system, params)
+        self.params = env.default_params(params).params
+        self.nlp = self._nlp()
+        self._step = jax.jit(env.step_env)
+
+    # ---- the planning problem --------------------------------------------------------------------------------
+    def _nlp(self) -> NLP:
+        model, system = self.model, self.env.system
+        N, m = model.options.steps, system.n_controls
+        su = control_scale(system)
+        lo, hi = model.control_bounds
+        fixed, final = final_value_rows(system)
+        bounded = bounded_free_states(system)
+        sx = state_scale(system)
+        steps = jnp.arange(N)
+
+        def rollout(z, data):
+            us = jnp.reshape(z, (N, m))
+            k, prev, p = data.params["k"], data.params["prev"], data.params["model"]
+            inner = ProblemData(p, data.x0)
+
+            @jax.checkpoint  # save only the carry per step: fewer kernels in the derivative programs (see shooting)
+            def body(carry, j):
+                x, cost = carry
+                _, nxt, reward, _, _, _ = model.step_env(EnvState(x=x, k=j), us[j], inner)
+                active = j >= k
+                return (jnp.where(active, nxt.x, x), cost + jnp.where(active, -reward, 0.0)), None
+
+            (xN, cost), _ = jax.lax.scan(body, (data.x0, jnp.zeros((), data.x0.dtype)), steps)
+            held = jnp.where((steps < k)[:, None], (us - prev) / su, 0.0)
+            return xN, cost + 0.5 * jnp.sum(held * held)
+
+        def rows(xN):
+            return jnp.concatenate([xN[fixed] - final, xN[bounded] / sx[bounded]])
+
+        def both(z, data):
+            xN, cost = rollout(z, data)
+            return cost, rows(xN)
+
+        constrained = self.terminal == "constraint" and fixed.size + bounded.size > 0
+        a = system.arrays()
+        return NLP(
+            objective=lambda z, data: rollout(z, data)[1],
+            constraints=(lambda z, data: rows(rollout(z, data)[0])) if constrained else None,
+            c_lower=np.concatenate([np.zeros(fixed.size), a["x_lower"][bounded] / sx[bounded]]) if constrained
+            else np.zeros(0),
+            c_upper=np.concatenate([np.zeros(fixed.size), a["x_upper"][bounded] / sx[bounded]]) if constrained
+            else np.zeros(0),
+            z_lower=np.tile(lo, N),
+            z_upper=np.tile(hi, N),
+            initial_guess=lambda data: jnp.reshape(data.params["prev"], (-1,)),
+            unravel=lambda z, data: (jnp.linspace(0.0, float(system.horizon), N + 1), None, jnp.reshape(z, (N, m))),
+            z_scale=np.tile(su, N),
+            name=f"{system.name}/mpc(N={N}, {self.terminal})",
+            objective_and_constraints=both if constrained else None,
+        )
+
+    def initial_plan(self) -> np.ndarray:
+        """The cold start of the first plan: the transcriptions' default guess (mid-bounds, else 0), (N, m)."""
+        lo, hi = self.model.control_bounds
+        return np.clip(guess_controls(self.env.system, self.model.options.steps), lo, hi)
+
+    def plan(self, x: Any, k: int, previous: np.ndarray):
+        """Solve the problem left at step ``k`` from state ``x``, warm-started from ``previous`` (N, m).
+
+        Returns:
+            ``(controls (N, m), NLPResult)``; ``controls[k:]`` is the plan, ``controls[:k]`` ``previous``'s.
+        """
+        previous = np.asarray(previous, np.float64)
+        data = ProblemData({"model": self.params, "k": np.int32(k), "prev": previous}, np.asarray(x, np.float64))
+        result = self.solver.solve(self.nlp, data, previous.reshape(-1))
+        return np.asarray(result.z, np.float64).reshape(previous.shape), result
+
+    # ---- the closed loop -------------------------------------------------------------------------------------
+    def action(self, u: np.ndarray) -> np.ndarray:
+        """The env action that applies control ``u``."""
+        if not self.env.options.normalize_actions:
+            return u
+        lo, hi = self.env.control_bounds
+        return 2.0 * (u - lo) / (hi - lo) - 1.0
+
+    def run(self, data: ProblemData, *, obs_noise: float = 0.0, seed: int = 0,
+            first_plan: np.ndarray | None = None) -> MPCEpisode:
+        """One closed-loop episode in the environment with ``data`` (its true parameters and x0).
+
+        Args:
+            data: the environment's data (``env.default_params(...)``).
+            obs_noise: the observation noise's standard deviation per unit of state scale.
+            seed: the noise's seed (``numpy.random.default_rng``).
+            first_plan: the warm start of the first plan, (N, m) controls (default :meth:`initial_plan`).
+        """
+        start = time.perf_counter()
+        env, N = self.env, self.model.options.steps
+        rng = np.random.default_rng(seed)
+        scale = state_scale(env.system)
+        plan = self.initial_plan() if first_plan is None else np.asarray(first_plan, np.float64)
+        _, state = env.reset(jax.random.PRNGKey(0), data)
+        states, controls = [np.asarray(state.x)], []
+        total, replans, failures, iterations, solve_s, compile_s = 0.0, 0, 0, 0, 0.0, 0.0
+        for k in range(N):
+            if k % self.replan_every == 0:
+                x_seen = np.asarray(state.x, np.float64)
+                if obs_noise > 0:
+                    x_seen = x_seen + obs_noise * scale * rng.standard_normal(x_seen.shape)
+                new, result = self.plan(x_seen, k, plan)
+                replans, iterations = replans + 1, iterations + result.iterations
+                solve_s, compile_s = solve_s + result.solve_seconds, compile_s + result.compile_seconds
+                if result.success and np.all(np.isfinite(new)):
+                    plan = new
+                else:
+                    failures += 1
+            _, state, reward, _, _, _ = self._step(state, jnp.asarray(self.action(plan[k])), data)
+            total += float(reward)
+            states.append(np.asarray(state.x))
+            controls.append(plan[k].copy())
+        return MPCEpisode(cost=-total, total=total, controls=np.array(controls), states=np.array(states),
+                          replans=replans, failures=failures, iterations=iterations, solve_seconds=solve_s,
+                          compile_seconds=compile_s, wall_seconds=time.perf_counter() - start)

@@ -1,0 +1,63 @@
+"""The shipped reference scores: present and fresh for every shipped system (replayed with today's env), and the
+normalised score they define."""
+
+import copy
+import math
+
+import pytest
+
+from myriad.runtime import load
+from myriad.runtime.rl import normalized_score, reference_scores
+from myriad.runtime.rl.reference import stale
+from myriad.runtime.systems import NAMES
+from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS
+
+
+def test_reference_scores_are_fresh_for_every_shipped_system():
+    doc = reference_scores()
+    assert list(doc["systems"]) == list(NAMES)
+    assert stale(doc) == [], "rerun: python -m myriad.runtime.rl --write"
+
+
+def test_staleness_is_detected():
+    doc = copy.deepcopy(reference_scores())
+    doc["systems"]["van_der_pol"]["random"]["cost"] *= 1 + 1e-6
+    doc["systems"]["pendulum"]["spec_sha256"] = "0" * 64
+    doc["env"]["steps"] = 50
+    del doc["systems"]["glucose"]
+    problems = stale(doc, names=["van_der_pol", "pendulum"])
+    assert any("van_der_pol: random" in p for p in problems) and any("pendulum: spec" in p for p in problems)
+    assert any(p.startswith("format/env") for p in problems) and any("glucose" in p for p in problems)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_each_record_is_complete_and_the_optimum_beats_the_random_policy(name):
+    r = reference_scores()["systems"][name]
+    system = load(name)
+    assert r["spec_sha256"] == system.spec_sha256 and r["sense"] == system.sense
+    opt, zero, rand = r["optimal"], r["zero_control"]["cost"], r["random"]["cost"]
+    method = {**TRANSCRIPTIONS, **INDIRECT}[opt["transcription"]]
+    assert opt["setting"].startswith(method.__name__ + "(") and opt["solver"]
+    assert all(math.isfinite(v) for v in (opt["cost"], opt["solver_cost"], opt["simulated_cost"], zero, rand))
+    assert len(opt["controls"]) == 100 and len(opt["controls"][0]) == system.n_controls
+    assert r["random"]["episodes"] == 100 and r["random"]["seed"] == 0
+    # Scores need J_random > J_opt. Doing nothing never beats the optimiser by more than an interior-point residue:
+    # on Bioreactor u = 0 is optimal, and the best solve's controls (up to 4e-5) cost 1.8e-7 relative more.
+    assert opt["cost"] < rand and opt["cost"] <= zero + 1e-6 * abs(zero)
+
+
+def test_normalized_score_is_0_at_random_and_100_at_the_optimum():
+    r = reference_scores()["systems"]["van_der_pol"]
+    assert normalized_score("van_der_pol", r["random"]["cost"]) == pytest.approx(0.0, abs=1e-12)
+    assert normalized_score(load("van_der_pol"), r["optimal"]["cost"]) == pytest.approx(100.0)
+    mid = 0.5 * (r["random"]["cost"] + r["optimal"]["cost"])
+    assert normalized_score("van_der_pol", mid) == pytest.approx(50.0)
+    with pytest.raises(KeyError, match="no reference scores"):
+        normalized_score("double_integrator", 1.0)
+
+
+def test_the_command_refuses_an_unknown_system(capsys):
+    from myriad.runtime.rl.cli import main
+
+    assert main(["--write", "--systems", "no_such_system"]) == 2
+    assert "no_such_system" in capsys.readouterr().err
