@@ -1,0 +1,18 @@
+"""End-to-end learning through the planner (Algorithm 2 of the published paper): a model inside the transcribed NLP,
+differentiated through K unrolled extragradient steps or by the implicit function theorem at a converged plan.
+
+    from myriad.runtime.e2e import E2EConfig, run_e2e
+    report = run_e2e("cancer_treatment", E2EConfig(model="parametric", gradient="unrolled"))
+"""
+
+from .config import E2EConfig as E2EConfig
+from .implicit import kkt_vjp as kkt_vjp
+from .implicit import make_implicit_solve as make_implicit_solve
+from .planner import PlannerState as PlannerState
+from .planner import UnrolledPlanner as UnrolledPlanner
+from .planner import default_planner_solver as default_planner_solver
+from .train import E2EReport as E2EReport
+from .train import run_e2e as run_e2e
+
+__all__ = ["E2EConfig", "E2EReport", "PlannerState", "UnrolledPlanner", "default_planner_solver", "kkt_vjp",
+           "make_implicit_solve", "run_e2e"]

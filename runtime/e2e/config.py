@@ -1,0 +1,131 @@
+"""What an end-to-end run learns and how (a frozen, checked configuration)."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from ..solvers.extragradient import Extragradient
+from ..sysid.checkpoint import describe
+
+__all__ = ["E2EConfig", "GRADIENTS", "LOSSES", "MODELS", "ON_FAILURE"]
+
+MODELS = ("parametric", "node")
+GRADIENTS = ("unrolled", "implicit")
+LOSSES = ("controls", "states", "both")
+ON_FAILURE = ("skip", "unrolled")
+
+
+def _describe(v: Any) -> Any:
+    """Like the checkpoint's ``describe``, but a solver by its fields and a step rule by its ``init``'s name: their
+    ``repr`` carries memory addresses, which would make every resume look like another configuration."""
+    if isinstance(v, Extragradient):
+        return {f.name: _describe(getattr(v, f.name)) for f in dataclasses.fields(v)}
+    if callable(getattr(v, "init", None)) and callable(getattr(v, "update", None)):
+        return describe(v.init)
+    return describe(v)
+
+
+def _int(v: Any, low: int) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= low
+
+
+@dataclasses.dataclass(frozen=True)
+class E2EConfig:
+    """Algorithm 2's settings (every field is checked on construction).
+
+    Attributes:
+        model: ``"parametric"`` (the spec's learnable parameters, from their guesses) or ``"node"`` (a Neural ODE).
+        gradient: ``"unrolled"`` (reverse mode through ``unroll`` warm-started extragradient steps) or
+            ``"implicit"`` (the implicit function theorem at a converged extragradient solve).
+        unroll: K, the extragradient steps per iteration (default 10 parametric, 5 Neural ODE, as published).
+        iterations: the most outer iterations (one optimiser update each).
+        optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
+            learned cost weights together).
+        reset_every: re-start the planner from the transcription's initial guess (duals 0) every this many
+            iterations (the published 1000); None: never after the first.
+        loss: imitate the expert's ``"controls"`` (published: mean over nodes of ||u_t - u*_t||^2), its
+            ``"states"`` (the model's planned states against the expert's), or ``"both"`` (the sum).
+        on_failure: implicit mode, when the solve did not converge or the KKT solve failed: ``"skip"`` the update,
+            or fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate). Each is counted.
+        learn_dynamics: learn the model's parameters (False: keep them at ``model_values`` or the truth; with
+            ``learn_cost`` this is inverse optimal control).
+        learn_cost: names of the spec's cost parameters to learn (their start: ``cost_guess``).
+        cost_guess: ``((name, value), ...)``, the starting values of ``learn_cost`` (default: the spec's value / 2).
+        hidden, activation: the Neural ODE's network.
+        planner: the :class:`Extragradient` whose step rules, penalty, bounds and scaling the unrolled planner uses
+            (None: :func:`~.planner.default_planner_solver`).
+        implicit_solver: the :class:`Extragradient` run to tolerance in implicit mode (None: tol 1e-9, 20,000
+            iterations).
+        checkpoint_every: iterations between checkpoints (with a checkpoint folder); None: 10 per run.
+        snapshot_every: iterations between stored plans for the training figure; None: 40 per run.
+        seed: the Neural ODE's initialisation.
+    """
+
+    model: str = "parametric"
+    gradient: str = "unrolled"
+    unroll: int | None = None
+    iterations: int = 600
+    optimizer: Any = 1e-2
+    reset_every: int | None = 1000
+    loss: str = "controls"
+    on_failure: str = "skip"
+    learn_dynamics: bool = True
+    learn_cost: tuple[str, ...] = ()
+    cost_guess: tuple = ()
+    hidden: tuple[int, ...] = (50, 50)
+    activation: str = "tanh"
+    planner: Extragradient | None = None
+    implicit_solver: Extragradient | None = None
+    checkpoint_every: int | None = None
+    snapshot_every: int | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        for name, allowed in (("model", MODELS), ("gradient", GRADIENTS), ("loss", LOSSES),
+                              ("on_failure", ON_FAILURE)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"E2EConfig({name}={getattr(self, name)!r}): expected one of {allowed}")
+        if self.unroll is None:
+            object.__setattr__(self, "unroll", 10 if self.model == "parametric" else 5)
+        for name, low, optional in (("unroll", 1, False), ("iterations", 1, False), ("reset_every", 1, True),
+                                    ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False)):
+            v = getattr(self, name)
+            if not ((optional and v is None) or _int(v, low)):
+                raise ValueError(f"E2EConfig: {name} must be an integer >= {low}{' or None' if optional else ''}, "
+                                 f"got {v!r}")
+        opt = self.optimizer
+        if isinstance(opt, (int, float)) and not isinstance(opt, bool):
+            if not (math.isfinite(opt) and opt > 0):
+                raise ValueError(f"E2EConfig: a learning rate must be finite and > 0, got {opt!r}")
+            object.__setattr__(self, "optimizer", float(opt))
+        elif not (callable(getattr(opt, "init", None)) and callable(getattr(opt, "update", None))):
+            raise ValueError(f"E2EConfig: optimizer must be a learning rate or an optax.GradientTransformation, "
+                             f"got {opt!r}")
+        object.__setattr__(self, "learn_cost", tuple(self.learn_cost))
+        object.__setattr__(self, "cost_guess", tuple((str(k), float(v)) for k, v in dict(self.cost_guess).items()))
+        unknown = set(dict(self.cost_guess)) - set(self.learn_cost)
+        if unknown:
+            raise ValueError(f"E2EConfig: cost_guess names {sorted(unknown)}, which are not in learn_cost")
+        if not self.learn_dynamics and not self.learn_cost:
+            raise ValueError("E2EConfig: nothing to learn (learn_dynamics=False and no learn_cost)")
+        for name in ("planner", "implicit_solver"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, Extragradient):
+                raise ValueError(f"E2EConfig: {name} must be an Extragradient, got {type(v).__name__}")
+        object.__setattr__(self, "hidden", tuple(int(w) for w in self.hidden))
+
+    def identity(self, system: str) -> tuple[str, dict]:
+        """``(sha256, description)`` of what fixes the sequence of iterates (not ``iterations``,
+        ``checkpoint_every`` or ``snapshot_every``, which a resumed run may change)."""
+        desc = {f.name: _describe(getattr(self, f.name)) for f in dataclasses.fields(self)
+                if f.name not in ("iterations", "checkpoint_every", "snapshot_every")}
+        opt = self.optimizer
+        desc["optimizer"] = {"adam": opt} if isinstance(opt, float) else {"custom": describe(opt.init)}
+        desc["system"] = system
+        return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest(), desc

@@ -1,0 +1,160 @@
+r"""One iteration of Algorithm 2 as one jit-compiled program: plan on the model, imitate the expert, update theta.
+
+With ``tr`` the learned leaves (the model's trainable parameters and any learned cost weights) and ``D(tr)`` the
+problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(tr.model)}``, x0):
+
+* unrolled: ``z = z_K(tr; s)``, K steps of :class:`~.planner.UnrolledPlanner` from the warm state ``s`` (a constant),
+  ``l(tr) = loss(z, D(tr))``, ``g = dl/dtr`` by reverse mode through the K steps; the next warm state is the K-th;
+* implicit: ``z = z*(tr)``, the extragradient solve to tolerance from the previous solution, ``g`` by the implicit
+  function theorem (:mod:`.implicit`); when the solve did not converge (or the KKT solve failed) the update is
+  skipped, or ``g`` comes from K unrolled steps started at the unconverged iterate (``on_failure``);
+
+then ``tr <- tr + optax_update(g)``. ``loss`` is the mean over the grid's nodes of ``||u - u*||^2`` (controls),
+``||x - x*||^2`` (the model's planned states against the expert's), or their sum. A step whose loss or gradient is
+not finite is never applied (and the learner stops). Every input is an array (the reset flag too), so the program
+is traced once per (model, NLP, configuration, shapes); ``TRACES`` counts the traces.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from ..data import ProblemData
+from ..nlp import NLP
+from ..solvers.extragradient.loop import _optax_promotion
+from .config import E2EConfig
+from .implicit import make_implicit_solve
+from .planner import UnrolledPlanner
+
+__all__ = ["Metrics", "Program", "TRACES", "USED"]
+
+TRACES = {"iteration": 0}
+# How each iteration got its gradient (Metrics.used).
+USED = ("unrolled", "implicit", "fallback_unrolled", "skipped")
+
+
+class Metrics(NamedTuple):
+    """What one iteration reports (host arrays after ``device_get``)."""
+
+    loss: jax.Array  # the imitation loss at the plan of this iteration's parameters (before the update)
+    grad_norm: jax.Array
+    kkt: jax.Array  # the planner's KKT residual (unrolled) or the solve's violation (implicit)
+    converged: jax.Array  # implicit: the solve converged; unrolled: True
+    used: jax.Array  # index into USED
+    finite: jax.Array
+    controls: jax.Array  # the plan on the model's grid (N + 1, m) and its states under the model (N + 1, n)
+    states: jax.Array
+
+
+class Program:
+    """The compiled iteration and the pieces around it, for one model, NLP, expert and configuration.
+
+    Args:
+        model: the sysid model; nlp: the transcription of ``model.as_system(theta)``.
+        config: the configuration; expert_controls, expert_states: on the NLP's grid.
+    """
+
+    def __init__(self, model: Any, nlp: NLP, config: E2EConfig, expert_controls: Any, expert_states: Any):
+        self.model, self.nlp, self.config = model, nlp, config
+        self.planner = UnrolledPlanner(nlp, config.planner)
+        self.isolve = make_implicit_solve(nlp, config.implicit_solver) if config.gradient == "implicit" else None
+        opt = config.optimizer
+        self.optimizer = optax.adam(opt) if isinstance(opt, float) else opt
+        self.expert = (jnp.asarray(expert_controls), jnp.asarray(expert_states))
+        self.iteration = jax.jit(self._iteration)
+
+    # ---- the learned leaves and the problem data -------------------------------------------------------------
+
+    def data(self, train: Any, frozen: Any, consts: Any) -> ProblemData:
+        theta = self.model.combine(train["model"], frozen["model"])
+        return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
+
+    def loss(self, z: Any, data: ProblemData) -> tuple[jax.Array, tuple]:
+        _, states, controls = self.nlp.unravel(z, data)
+        u_star, x_star = self.expert
+        terms = []
+        if self.config.loss in ("controls", "both"):
+            terms.append(jnp.mean(jnp.sum((controls - u_star) ** 2, axis=-1)))
+        if self.config.loss in ("states", "both"):
+            terms.append(jnp.mean(jnp.sum((states - x_star) ** 2, axis=-1)))
+        return sum(terms[1:], terms[0]), (controls, states)
+
+    def init_opt(self, train: Any) -> Any:
+        with _optax_promotion():
+            return self.optimizer.init(train)
+
+    def init_carry(self, train: Any, frozen: Any, consts: Any) -> Any:
+        """The planner's starting state (unrolled) or starting point (implicit) at the initial guess."""
+        data = self.data(train, frozen, consts)
+        if self.config.gradient == "implicit":
+            return jnp.asarray(self.nlp.initial_guess(data))
+        return self.planner.reset(data)
+
+    # ---- the gradients ---------------------------------------------------------------------------------------
+
+    def _unrolled(self, train, frozen, consts, state):
+        def objective(tr):
+            data = self.data(tr, frozen, consts)
+            new = self.planner.run(state, data, self.config.unroll)
+            value, plan = self.loss(self.planner.z(new), data)
+            return value, (new, plan)
+
+        (value, (new, plan)), grad = jax.value_and_grad(objective, has_aux=True)(train)
+        return value, grad, new, plan
+
+    def _implicit(self, train, frozen, consts, z0):
+        def objective(tr):
+            data = self.data(tr, frozen, consts)
+            sol = self.isolve(data.params, data.x0, z0)
+            value, plan = self.loss(sol.z, data)
+            return value, (sol, plan)
+
+        (value, (sol, plan)), grad = jax.value_and_grad(objective, has_aux=True)(train)
+        finite = jnp.isfinite(value) & _all_finite(grad)
+        ok = sol.converged & finite
+        z_next = jnp.where(jnp.all(jnp.isfinite(sol.z)), sol.z, z0)
+        if self.config.on_failure == "skip":
+            return value, grad, z_next, plan, sol, ok, jnp.where(ok, 1, 3)
+
+        def fallback(_):
+            data = jax.lax.stop_gradient(self.data(train, frozen, consts))
+            v, g, new, p = self._unrolled(train, frozen, consts, self.planner.reset(data, z_next))
+            return v, g, self.planner.z(new), p
+
+        value, grad, z_next, plan = jax.lax.cond(ok, lambda _: (value, grad, z_next, plan), fallback, None)
+        return value, grad, z_next, plan, sol, jnp.asarray(True), jnp.where(ok, 1, 2)
+
+    # ---- the iteration ---------------------------------------------------------------------------------------
+
+    def _iteration(self, train, opt_state, carry, frozen, consts, reset):
+        TRACES["iteration"] += 1
+        if self.config.gradient == "implicit":
+            start = jnp.asarray(self.nlp.initial_guess(self.data(train, frozen, consts)))
+            carry = jnp.where(reset, start, carry)
+            value, grad, carry, plan, sol, ok, used = self._implicit(train, frozen, consts, carry)
+            kkt, converged = sol.violation, sol.converged
+        else:
+            data = jax.lax.stop_gradient(self.data(train, frozen, consts))
+            carry = jax.lax.cond(reset, lambda: self.planner.reset(data), lambda: carry)
+            value, grad, carry, plan = self._unrolled(train, frozen, consts, carry)
+            kkt, converged, ok, used = self.planner.kkt(carry), jnp.asarray(True), jnp.asarray(True), 0
+        # A gradient the implicit mode refused (a solve that did not converge) is a skip, not a failure: the run
+        # stops only at a non-finite loss, or a non-finite gradient that would have been used.
+        finite = jnp.isfinite(value) & (~ok | _all_finite(grad))
+        apply = ok & finite & _all_finite(grad)
+        with _optax_promotion():
+            updates, new_opt = self.optimizer.update(grad, opt_state, train)
+        new_train = optax.apply_updates(train, updates)
+        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(apply, a, b), new, old)  # noqa: E731
+        norm = optax.tree.norm(grad)
+        metrics = Metrics(value, norm, kkt, converged, jnp.where(apply, used, 3), finite, *plan)
+        return keep(new_train, train), keep(new_opt, opt_state), carry, metrics
+
+
+def _all_finite(tree: Any) -> jax.Array:
+    leaves = jax.tree.leaves(tree)
+    return jnp.all(jnp.asarray([jnp.all(jnp.isfinite(a)) for a in leaves])) if leaves else jnp.asarray(True)

@@ -1,0 +1,267 @@
+"""Algorithm 2 end to end: the expert, the compiled iteration in a loop with resets, checkpoints and a progress bar,
+then the learned model judged on the true system.
+
+    report = run_e2e("cancer_treatment", E2EConfig(model="parametric"))
+    report.learned, report.record()["achieved_cost"]
+
+Checkpoints reuse the system-identification format (:mod:`myriad.runtime.sysid.checkpoint`): the learned leaves as
+``theta``, the optimiser state *and the planner's warm state* as ``opt_state``, the history ``(iteration, imitation
+loss, planner KKT residual)``, the expert's identity as the dataset identity, and the configuration's identity
+(:meth:`E2EConfig.identity`). A resumed run continues bit for bit on CPU; only ``iterations``, ``checkpoint_every``
+and ``snapshot_every`` may change. The stored plans of the training figure are not checkpointed: after a resume it
+shows the iterations since.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..loader import load
+from ..solution import Solution, json_number
+from ..solve import solve
+from ..solvers import Ipopt
+from ..sysid.checkpoint import load_checkpoint, save_checkpoint
+from ..sysid.models import NeuralODE, Parametric
+from ..system import System
+from ..transcriptions import SingleShooting
+from ..transcriptions.base import transcribe
+from .config import E2EConfig
+from .evaluate import E2EEvaluation, evaluate_learned
+from .step import TRACES, USED, Program
+
+__all__ = ["E2EReport", "run_e2e", "expert_id"]
+
+CHECKPOINT = "checkpoint.npz"
+
+
+@dataclasses.dataclass(frozen=True)
+class E2EReport:
+    """The outcome of :func:`run_e2e`.
+
+    Attributes:
+        theta: the model's final parameters; learned / true: the parametric model's values by name (and the learned
+            cost weights, keyed ``cost.<name>``), else empty.
+        history: ``[(iteration, imitation_loss, planner_kkt), ...]``, one row per iteration (``iteration`` counts
+            from 0; the loss is that of the plan of the parameters before the iteration's update).
+        snapshots: ``[(iteration, controls, states), ...]``, plans kept for the training figure.
+        counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``).
+        status: ``"completed"`` or ``"non_finite"`` (the run stopped at a non-finite loss or gradient).
+        compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
+    """
+
+    system: str
+    config: E2EConfig
+    model: Any
+    theta: Any
+    spec_params: dict
+    learned: dict
+    true: dict
+    history: list
+    snapshots: list
+    counts: dict
+    status: str
+    message: str
+    iterations: int
+    train_seconds: float
+    compile_count: int
+    evaluation: E2EEvaluation
+
+    @property
+    def converged(self) -> bool:
+        return self.status == "completed" and self.evaluation.converged
+
+    def record(self) -> dict[str, Any]:
+        ev = self.evaluation.record()
+        last = self.history[-1][1] if self.history else math.nan
+        return {"system": self.system, "model": self.config.model, "gradient": self.config.gradient,
+                "unroll": self.config.unroll, "learned": self.learned, "true": self.true,
+                "imitation_loss": json_number(last), **ev, "train_seconds": round(self.train_seconds, 3),
+                "iterations": self.iterations, "seed": self.config.seed, "counts": self.counts,
+                "compile_count": self.compile_count, "status": self.status, "converged": bool(self.converged),
+                "message": self.message}
+
+
+def expert_id(expert: Solution, system: System) -> str:
+    """A SHA-256 of the expert trajectory and the spec: what a checkpoint's run imitated."""
+    h = hashlib.sha256(f"{system.name}\0{system.spec_sha256}\0".encode())
+    for a in (expert.controls, expert.states):
+        a = np.ascontiguousarray(a, dtype="<f8")
+        h.update(f"{a.shape}".encode() + a.tobytes())
+    return h.hexdigest()
+
+
+def _model(system: System, config: E2EConfig):
+    if config.model == "parametric":
+        return Parametric(system)
+    return NeuralODE(system, hidden=config.hidden, activation=config.activation)
+
+
+def _learnables(system: System, model: Any, config: E2EConfig) -> tuple[Any, Any, dict, dict]:
+    """``(train, frozen, consts, true)``: the learned leaves, the rest of theta, the spec's other parameters and x0,
+    and the true values of the learned parameters (parametric and cost) by name."""
+    key = jax.random.key(config.seed)
+    theta = model.init_params(key, None)
+    true = {}
+    if isinstance(model, Parametric):
+        true = {k: float(v) for k, v in model.true_params().items()}
+        if not config.learn_dynamics:
+            theta = model.true_params()
+    mask = model.trainable(theta) if config.learn_dynamics else jax.tree.map(lambda _: False, theta)
+    train_m, frozen_m = eqx.partition(theta, mask)
+    spec = system.default_params(jnp.float64)
+    unknown = [n for n in config.learn_cost if n not in spec]
+    if unknown:
+        raise ValueError(f"{system.name}: learn_cost names {unknown}, not parameters of the spec ({list(spec)})")
+    structural = [n for n in config.learn_cost if n in system.structural_params]
+    if structural:
+        raise ValueError(f"{system.name}: {structural} set initial values, bounds or the horizon; they cannot be "
+                         f"learned as cost weights")
+    guess = dict(config.cost_guess)
+    cost = {n: jnp.asarray(guess.get(n, 0.5 * float(spec[n])), jnp.float64) for n in config.learn_cost}
+    true.update({f"cost.{n}": float(spec[n]) for n in config.learn_cost})
+    consts = {"spec": {k: v for k, v in spec.items() if k not in cost}, "x0": jnp.asarray(system.x0, jnp.float64)}
+    return {"model": train_m, "cost": cost}, {"model": frozen_m}, consts, true
+
+
+def _bar(progress: bool | None, total: int, initial: int, desc: str):
+    if not (sys.stderr.isatty() if progress is None else progress):
+        return None
+    from tqdm import tqdm  # lazily: only the progress bar needs it
+
+    return tqdm(total=total, initial=initial, desc=desc, unit="it", file=sys.stderr, dynamic_ncols=True)
+
+
+def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(), *, transcription: Any = None,
+            checkpoint_dir: str | os.PathLike | None = None, resume: bool = False, progress: bool | None = None,
+            expert: Solution | None = None) -> E2EReport:
+    """Learn a model (and cost weights) by imitating the expert through the planner (Algorithm 2), then judge it.
+
+    Args:
+        system: the true system (or its name or spec path).
+        config: an :class:`E2EConfig`.
+        transcription: the planning transcription (default ``SingleShooting()``, the published setting).
+        checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``); None: none.
+        resume: continue from the checkpoint there (an error names what differs if it belongs to another run).
+        progress: a tqdm bar with the loss on stderr; None: only when stderr is a terminal.
+        expert: the expert's solution on the transcription's grid (default: the true optimum, IPOPT).
+
+    Raises:
+        TypeError, ValueError: bad arguments, all before any work; ``CheckpointMismatch`` on a foreign checkpoint.
+    """
+    if not isinstance(config, E2EConfig):
+        raise TypeError(f"run_e2e: config must be an E2EConfig, got {type(config).__name__}")
+    if resume and checkpoint_dir is None:
+        raise ValueError("run_e2e: resume=True needs a checkpoint_dir")
+    if progress not in (None, True, False):
+        raise ValueError(f"run_e2e: progress must be None, True or False, got {progress!r}")
+    system = system if isinstance(system, System) else load(system)
+    transcription = SingleShooting() if transcription is None else transcription
+    model = _model(system, config)  # a parametric model refuses a spec without learnable parameters
+    train, frozen, consts, true = _learnables(system, model, config)
+    if expert is None:
+        expert = solve(system, transcription, Ipopt(), resimulate=False)
+    if not expert.converged:
+        raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
+    nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), transcription)
+    data0 = _data0(consts, train, frozen, model)
+    grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
+    if expert.controls.shape != grid:
+        raise ValueError(f"{system.name}: the expert's controls {expert.controls.shape} are not on the "
+                         f"transcription's grid {grid}")
+    program = _program(model, nlp, config, expert)
+    opt_state, carry = program.init_opt(train), program.init_carry(train, frozen, consts)
+    config_id, desc = config.identity(system.name)
+    eid = expert_id(expert, system)
+    history, counts, start = [], dict.fromkeys(USED, 0), 0
+    path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
+    if resume and path.is_file():
+        ck = load_checkpoint(path, {"theta": train, "opt_state": (opt_state, carry)}, dataset_id=eid,
+                             config_id=config_id, config=desc)
+        train, (opt_state, carry), start, history = ck.theta, ck.opt_state, ck.epoch, ck.history
+        counts.update({k: int(ck.extra.get(k, 0)) for k in USED})
+    every = config.checkpoint_every or max(1, config.iterations // 10)
+    snap_every = config.snapshot_every or max(1, config.iterations // 40)
+    traces, t0 = TRACES["iteration"], time.perf_counter()
+    status, message, snapshots = "completed", "", []
+    bar = _bar(progress, config.iterations, start, f"{system.name} e2e ({config.model}, {config.gradient})")
+
+    def save(it):
+        save_checkpoint(path, theta=train, opt_state=(opt_state, carry), key=jax.random.key_data(
+            jax.random.key(config.seed)), epoch=it, best_theta=train, best_val=min((h[1] for h in history),
+                                                                                   default=math.inf),
+            history=history, dataset_id=eid, config_id=config_id, config=desc, extra=counts)
+
+    it = start
+    for it in range(start, config.iterations):
+        reset = jnp.asarray(it > 0 and config.reset_every is not None and it % config.reset_every == 0)
+        new_train, new_opt, new_carry, m = program.iteration(train, opt_state, carry, frozen, consts, reset)
+        m = jax.device_get(m)
+        if not bool(m.finite):
+            status = "non_finite"
+            message = (f"iteration {it}: the imitation loss or its gradient is not finite (loss {float(m.loss)}); "
+                       f"stopped with the parameters before it")
+            break
+        train, opt_state, carry = new_train, new_opt, new_carry
+        history.append((it, float(m.loss), float(m.kkt)))
+        counts[USED[int(m.used)]] += 1
+        if it % snap_every == 0 or it == config.iterations - 1:
+            snapshots.append((it, np.asarray(m.controls), np.asarray(m.states)))
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"loss {float(m.loss):.3e}")
+        if path is not None and (it + 1) % every == 0:
+            save(it + 1)
+        it += 1
+    if bar is not None:
+        bar.close()
+    if path is not None and status == "completed" and it > start and it % every:
+        save(it)
+    seconds = time.perf_counter() - t0
+    if counts["skipped"] or counts["fallback_unrolled"]:
+        message = (message + "; " if message else "") + (
+            f"implicit solve not converged on {counts['skipped'] + counts['fallback_unrolled']} iterations "
+            f"({counts['skipped']} skipped, {counts['fallback_unrolled']} unrolled instead)")
+    theta = model.combine(train["model"], frozen["model"])
+    spec_params = {**consts["spec"], **train["cost"]}
+    evaluation = evaluate_learned(model, theta, spec_params, expert, transcription)
+    learned = {k: float(v) for k, v in theta.items()} if isinstance(model, Parametric) else {}
+    learned.update({f"cost.{k}": float(v) for k, v in train["cost"].items()})
+    if not evaluation.converged:
+        message = (message + "; " if message else "") + evaluation.message
+    return E2EReport(system=system.name, config=config, model=model, theta=theta, spec_params=spec_params,
+                     learned=learned, true=true, history=history, snapshots=snapshots, counts=counts, status=status,
+                     message=message or evaluation.message, iterations=len(history), train_seconds=seconds,
+                     compile_count=TRACES["iteration"] - traces, evaluation=evaluation)
+
+
+def _data0(consts, train, frozen, model):
+    from ..data import ProblemData
+
+    return ProblemData({"spec": {**consts["spec"], **train["cost"]},
+                        "model": model.combine(train["model"], frozen["model"])}, consts["x0"])
+
+
+_PROGRAMS: dict = {}
+
+
+def _program(model, nlp, config, expert) -> Program:
+    """One compiled program per (model, NLP, configuration, expert): a second run of the same reuses it."""
+    # iterations, checkpoint_every and snapshot_every do not enter the compiled iteration.
+    same = dataclasses.replace(config, iterations=1, checkpoint_every=None, snapshot_every=None)
+    key = (model, id(nlp), same, expert_id(expert, model.system))
+    if key not in _PROGRAMS:
+        _PROGRAMS.clear()  # keep one: each holds compiled code
+        _PROGRAMS[key] = Program(model, nlp, config, expert.controls, expert.states)
+    return _PROGRAMS[key]
