@@ -2,23 +2,26 @@
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test demo build check lint clean
+.PHONY: setup test demo build check lint clean cards
 
 setup:
 	@bash scripts/setup.sh
 
 build: setup
 	$(BIN)/myriadc build specs/
+	$(BIN)/myriadc card specs/ -o docs/cards
 
 lint: setup
 	$(BIN)/ruff check .
 
 check: setup
 	$(BIN)/myriadc build specs/ --check
+	$(BIN)/myriadc card specs/ -o docs/cards --check
 
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/myriadc build specs/ --check
+	$(BIN)/myriadc card specs/ -o docs/cards --check
 	$(BIN)/python -m pytest
 
 # The main job: the reference table of all 18 systems (published setting + best over all transcriptions),
@@ -28,6 +31,10 @@ demo: setup
 	$(BIN)/myriadc list
 	mkdir -p out
 	$(BIN)/myriad bench --json out/bench.json --markdown out/bench.md --plots out/plots
+
+# The problem cards' recorded results and plots (docs/cards/results.json, img/): solves every system, then re-renders.
+cards: setup
+	$(BIN)/python bench/cards.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

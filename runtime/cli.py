@@ -54,6 +54,15 @@ def _parser():
     from .sysid.cli import add_parser as add_sysid
 
     add_sysid(sub)
+    from .sweep.cli import add_parser as add_sweep
+
+    add_sweep(sub)
+    from .e2e.cli import add_parser as add_e2e
+
+    add_e2e(sub)
+    from .rl.cli import add_parser as add_rl_reference
+
+    add_rl_reference(sub)
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
     b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
     b.add_argument("--json", metavar="FILE")
@@ -142,6 +151,27 @@ def _cmd_sysid(args) -> int:
     return run(args)
 
 
+def _cmd_e2e(args) -> int:
+    _configure_jax()
+    from .e2e.cli import run
+
+    return run(args)
+
+
+def _cmd_rl_reference(args) -> int:
+    _configure_jax()
+    from .rl.cli import run
+
+    return run(args)
+
+
+def _cmd_sweep(args) -> int:
+    _configure_jax()
+    from .sweep.cli import run
+
+    return run(args)
+
+
 def _cmd_bench(args) -> int:
     _configure_jax()
     from .bench import markdown_table, run_bench
@@ -179,7 +209,8 @@ def main(argv=None) -> int:
         parser.print_help(sys.stderr)
         return 2
     try:
-        return {"solve": _cmd_solve, "bench": _cmd_bench, "sysid": _cmd_sysid}[args.command](args)
+        return {"solve": _cmd_solve, "bench": _cmd_bench, "sysid": _cmd_sysid, "sweep": _cmd_sweep,
+                "e2e": _cmd_e2e, "rl-reference": _cmd_rl_reference}[args.command](args)
     except KeyError as exc:
         print(f"myriad: error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2

@@ -28,5 +28,10 @@ stamp="$VENV/.installed"
 if [ -f "$stamp" ] && [ "$stamp" -nt pyproject.toml ] && [ "$stamp" -nt constraints.txt ]; then exit 0; fi
 [ -x "$VENV/bin/python" ] || "$PYTHON" -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip setuptools wheel
-"$VENV/bin/python" -m pip install -q -c constraints.txt -e ".[test,bench]"
+# The distribution was called `myriad` before `myriad-control`; left installed, its editable finder and console
+# scripts would sit beside the new ones (removed first: uninstalling it afterwards would delete the new scripts).
+if "$VENV/bin/python" -m pip show -q myriad >/dev/null 2>&1; then
+  "$VENV/bin/python" -m pip uninstall -q -y myriad && rm -rf myriad.egg-info
+fi
+"$VENV/bin/python" -m pip install -q -c constraints.txt -e ".[test,bench,ray]"
 touch "$stamp"
