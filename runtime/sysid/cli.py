@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
                    help="least_squares (parametric default) or adam on the trajectory loss (Neural ODE default)")
     s.add_argument("--trajectories", type=int, default=10, metavar="N", help="training trajectories per dataset")
     s.add_argument("--rounds", type=int, default=None, metavar="K",
-                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 3 for a "
+                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 4 for a "
                         "Neural ODE, 1 for a parametric model)")
     s.add_argument("--noise", type=float, default=0.0, metavar="F", help="observation noise, fraction of the range")
     s.add_argument("--seed", type=int, default=0, metavar="S")
@@ -31,6 +31,9 @@ def add_parser(sub) -> None:
     s.add_argument("--hidden", type=int, nargs="+", default=[100, 100], metavar="W", help="Neural ODE widths")
     s.add_argument("--activation", choices=["tanh", "sigmoid", "softplus", "relu"], default="tanh",
                    help="Neural ODE activation (the published one is sigmoid)")
+    s.add_argument("--polish", type=int, default=None, metavar="N",
+                   help="Neural ODE: L-BFGS iterations after each round's Adam fit, anchored on the earlier plans' "
+                        "true trajectories (default 300; 0: none)")
     s.add_argument("--json", metavar="FILE", help="write the record as JSON")
     s.add_argument("--plots", metavar="DIR", help="loss curve, learned vs true trajectories, vector field (PNG)")
     s.add_argument("--checkpoint", metavar="DIR", help="adam: write checkpoints here")
@@ -45,12 +48,15 @@ def _usage(message: str) -> int:
 def run(args) -> int:
 
     from .fit import FitConfig
+    from .polish import PolishConfig
     from .run import SysidConfig, failed, node_fit_config, run_sysid
 
     if args.resume and not args.checkpoint:
         return _usage("--resume needs --checkpoint DIR")
     if args.epochs is not None and args.epochs < 1:
         return _usage("--epochs must be at least 1")
+    if args.polish is not None and (args.polish < 0 or args.model != "node"):
+        return _usage("--polish N (N >= 0) goes with --model node")
     for path in (args.json,):
         if path and not Path(path).resolve().parent.is_dir():
             return _usage(f"the folder of {path} does not exist")
@@ -58,9 +64,10 @@ def run(args) -> int:
         fit = None
         if args.epochs is not None:
             fit = node_fit_config(args.epochs) if args.model == "node" else FitConfig(epochs=args.epochs)
+        polish = "default" if args.polish is None else (PolishConfig(iterations=args.polish) if args.polish else None)
         config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
                              rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden),
-                             activation=args.activation, fit=fit)
+                             activation=args.activation, fit=fit, polish=polish)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load

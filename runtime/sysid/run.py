@@ -26,6 +26,7 @@ from .evaluate import Evaluation, evaluate
 from .fit import FitConfig, fit
 from .least_squares import least_squares
 from .models import NeuralODE, Parametric
+from .polish import PolishConfig, polish
 
 __all__ = ["SysidConfig", "SysidReport", "node_fit_config", "run_sysid"]
 
@@ -42,13 +43,16 @@ class SysidConfig:
         method: "least_squares" (Levenberg-Marquardt, parametric only; the default there) or "adam" (the published
             trajectory loss with optax; the only choice for Neural ODEs).
         trajectories: training trajectories per dataset (validation and test: ``max(3, trajectories // 3)`` each).
-        rounds: datasets in sequence (default: 3 for a Neural ODE, 1 for a parametric model).
+        rounds: datasets in sequence (default: 4 for a Neural ODE, 1 for a parametric model).
         noise: observation noise as a fraction of the state range.
         seed: everything random derives from it (same seed, same result on CPU).
         hidden, activation: the Neural ODE's network (default 2 x 100, tanh; the published "sigmoid" is available).
         fit: the optimiser settings for ``method="adam"``; None: :func:`node_fit_config` for a Neural ODE (the recipe
             in docs/notes/node-training.md), ``FitConfig()`` for a parametric model.
         sampling: how trajectories are drawn (its ``noise`` is replaced by ``noise`` above).
+        polish: an L-BFGS polish after every round's Adam fit, with the true trajectories of the earlier rounds'
+            plans as anchors (:mod:`.polish`); ``"default"``:
+            ``PolishConfig()`` for a Neural ODE, None (no polish) for a parametric model.
     """
 
     model: str = "parametric"
@@ -61,6 +65,7 @@ class SysidConfig:
     activation: str = "tanh"
     fit: FitConfig | None = None
     sampling: Sampling = Sampling()
+    polish: Any = "default"
 
     def __post_init__(self):
         if self.model not in _MODELS:
@@ -72,9 +77,14 @@ class SysidConfig:
             raise ValueError("SysidConfig: least squares fits parametric models only; a Neural ODE trains with adam")
         object.__setattr__(self, "method", method)
         if self.rounds is None:  # datasets in sequence fix a Neural ODE's plan (docs/notes/node-training.md)
-            object.__setattr__(self, "rounds", 3 if self.model == "node" else 1)
+            object.__setattr__(self, "rounds", 4 if self.model == "node" else 1)
         if self.fit is None:
             object.__setattr__(self, "fit", node_fit_config() if self.model == "node" else FitConfig())
+        if isinstance(self.polish, str) and self.polish == "default":
+            object.__setattr__(self, "polish", PolishConfig() if self.model == "node" else None)
+        if self.polish is not None and (not isinstance(self.polish, PolishConfig) or method != "adam"):
+            raise ValueError(f"SysidConfig: polish must be a PolishConfig (with method='adam') or None, got "
+                             f"{self.polish!r}")
         if self.trajectories < 1 or self.rounds < 1:
             raise ValueError("SysidConfig: trajectories and rounds must be at least 1")
         if not (self.noise >= 0 and math.isfinite(self.noise)):
@@ -102,6 +112,7 @@ class SysidReport:
     history: list
     dataset: Dataset
     rounds: int
+    polish: tuple = ()
 
     @property
     def converged(self) -> bool:
@@ -120,6 +131,7 @@ class SysidReport:
             "seed": self.config.seed, "noise": self.config.noise, "trajectories": self.config.trajectories,
             "rounds": self.rounds, "fit_status": self.fit_status, "fit_message": self.fit_message,
             "converged": bool(self.converged), "message": failed(self) or ev["message"],
+            "polish": [p.record() for p in self.polish],
         }
 
 
@@ -137,11 +149,14 @@ def node_fit_config(epochs: int = 1000) -> FitConfig:
     return FitConfig(optimizer=optimizer, epochs=epochs, method="multiple_shooting", window=10, scale="range")
 
 
+def _cat(x: Trajectories, y: Trajectories) -> Trajectories:
+    return Trajectories(*(np.concatenate([p, q]) for p, q in zip(x, y)))
+
+
 def _merge(a: Dataset, b: Dataset) -> Dataset:
     """The union of two datasets on the same grid (each split concatenated)."""
-    cat = lambda x, y: Trajectories(*(np.concatenate([p, q]) for p, q in zip(x, y)))  # noqa: E731
-    return dataclasses.replace(a, train=cat(a.train, b.train), validation=cat(a.validation, b.validation),
-                               test=cat(a.test, b.test))
+    return dataclasses.replace(a, train=_cat(a.train, b.train), validation=_cat(a.validation, b.validation),
+                               test=_cat(a.test, b.test))
 
 
 def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidConfig(), *,
@@ -161,7 +176,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
     optimum = solve(system, transcription, solver, resimulate=False)
     theta, history, seconds = None, [], 0.0
     standard_errors, unidentifiable, status, message = {}, (), "converged", ""
-    evaluation = None
+    evaluation, anchors, polishes = None, None, []
     for r in range(config.rounds):
         if r:
             around = np.asarray(evaluation.plan.controls)
@@ -171,6 +186,11 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             more = make_dataset(system, dataclasses.replace(sampling, controls="around"), trajectories=sizes,
                                 seed=config.seed + r, around=around)
             dataset = _merge(dataset, more)
+            if config.polish is not None:  # the plan's own true trajectory, observed like the rest of the data
+                exact = dataclasses.replace(sampling, controls="around", spread=0.0, x0_std=0.0, smooth=False)
+                anchor = make_dataset(system, exact, trajectories=(1, 0, 0), seed=config.seed + r + 10**6,
+                                      around=around).train  # (its own noise draws: another seed)
+                anchors = anchor if anchors is None else _cat(anchors, anchor)
         t0 = time.perf_counter()
         if config.method == "least_squares":
             # Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local
@@ -193,6 +213,12 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             fr = fit(model, dataset, config.fit, theta0=theta, checkpoint_dir=where, resume=resume, progress=progress)
             theta, status, message = fr.theta, fr.stopped, fr.message
             history += [(e + (r and history[-1][0]), tl, vl) for e, tl, vl in fr.history]
+            if config.polish is not None and status in ("converged", "early_stopping", "max_epochs"):
+                polished = polish(model, dataset, theta, config.polish, anchors=anchors)
+                theta = polished.theta
+                polishes.append(polished)
+                if polished.status != "converged":
+                    message += f"; round {r}: {polished.message}"
         seconds += time.perf_counter() - t0
         evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum)
     learned, true = {}, {}
@@ -202,7 +228,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
     return SysidReport(system=system.name, config=config, model=model, theta=theta, learned=learned, true=true,
                        standard_errors=standard_errors, unidentifiable=unidentifiable, fit_status=status,
                        fit_message=message, train_seconds=seconds, evaluation=evaluation, history=history,
-                       dataset=dataset, rounds=config.rounds)
+                       dataset=dataset, rounds=config.rounds, polish=tuple(polishes))
 
 
 def failed(report: SysidReport) -> str | None:
