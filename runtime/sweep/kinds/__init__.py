@@ -3,12 +3,14 @@
 
 from .base import AbstractKind as AbstractKind
 from .base import Outcome as Outcome
+from .mpc import Mpc as Mpc
 from .solve import Solve as Solve
 from .sysid import Sysid as Sysid
 
 KINDS: dict[str, type[AbstractKind]] = {
     "solve": Solve,
     "sysid": Sysid,
+    "mpc": Mpc,
 }
 
-__all__ = ["AbstractKind", "KINDS", "Outcome", "Solve", "Sysid"]
+__all__ = ["AbstractKind", "KINDS", "Mpc", "Outcome", "Solve", "Sysid"]
