@@ -1,6 +1,7 @@
 """``myriad``: solve one system, or run the reference table. A thin argparse shell over :mod:`myriad.runtime`.
 
-Exit codes: 0 ok, 1 a solve failed or missed its target, 2 usage.
+Exit codes: 0 ok, 1 a solve failed or missed its target, 2 usage. Usage errors (a solver for a method that takes
+none, an output file whose folder is missing or not writable, ...) are found before any system is loaded or solved.
 """
 
 from __future__ import annotations
@@ -51,6 +52,9 @@ def _parser():
                         "default: each method's own")
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
+    s.add_argument("--error-tolerance", type=float, default=1e-6, metavar="TOL",
+                   help="warn (on stderr) when the error estimate, the relative local error of the dynamics on the "
+                        "method's grid, exceeds TOL (default 1e-6)")
     from .sysid.cli import add_parser as add_sysid
 
     add_sysid(sub)
@@ -111,6 +115,51 @@ def _usage(message):
     return 2
 
 
+def _output_file_error(path, option):
+    """Why ``path`` cannot be written as a file (None if it can): checked before the work that would fill it."""
+    if path is None:
+        return None
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path):
+        return f"{option} {path}: is a folder, expected a file name"
+    if not os.path.isdir(folder):
+        what = "is not a folder" if os.path.exists(folder) else "does not exist"
+        return f"{option} {path}: the folder {folder} {what}; create it first"
+    if not os.access(folder, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        return f"{option} {path}: not writable"
+    return None
+
+
+def _output_folder_error(path, option):
+    """Why ``path`` cannot be used as an output folder (None if it can); missing folders are created later."""
+    if path is None:
+        return None
+    existing = os.path.abspath(path)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        return f"{option} {path}: {existing} is a file, not a folder"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"{option} {path}: {existing} is not writable"
+    return None
+
+
+def _plot_format_error(path, option):
+    if path is None:
+        return None
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    ext = os.path.splitext(path)[1].lstrip(".").lower()
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if ext and ext not in formats:
+        return f"{option} {path}: unknown image format .{ext}; use one of {', '.join(sorted(formats))}"
+    return None
+
+
+def _first_error(*errors):
+    return next((e for e in errors if e is not None), None)
+
+
 def _cmd_solve(args) -> int:
     _configure_jax()
     from . import load, solve
@@ -120,6 +169,12 @@ def _cmd_solve(args) -> int:
         method = _transcription(args)
     except SystemExit as usage:  # checked before the system is even loaded
         return int(usage.code)
+    error = _first_error(
+        None if args.error_tolerance > 0 else f"--error-tolerance must be positive, got {args.error_tolerance}",
+        _output_file_error(args.json, "--json"), _output_file_error(args.plot, "--plot"),
+        _plot_format_error(args.plot, "--plot"))
+    if error:
+        return _usage(error)
     system = load(args.system)
     sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None)
     state = "converged" if sol.converged else "NOT CONVERGED"
@@ -130,6 +185,7 @@ def _cmd_solve(args) -> int:
           f"constraint violation {sol.constraint_violation:.2e}")
     print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
           f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
+    _report_error_estimate(sol, args.error_tolerance)
     print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s")
     if args.json:
         rec = sol.record()
@@ -142,6 +198,27 @@ def _cmd_solve(args) -> int:
         plot_solution(sol, args.plot, system)
         print(f"  plot: {args.plot}")
     return 0 if sol.converged else 1
+
+
+def _report_error_estimate(sol, tolerance):
+    import math
+
+    import numpy as np
+
+    if not math.isfinite(sol.error_estimate):
+        why = "not computed by this method" if sol.interval_errors is None else "the trajectory is not finite"
+        print(f"  error estimate: none ({why})")
+        return
+    print(f"  error estimate {sol.error_estimate:.2e} (relative local error of the dynamics, max over "
+          f"{sol.interval_errors.size} intervals)")
+    if sol.error_estimate > tolerance:
+        worst = int(np.argmax(sol.interval_errors))
+        over = int(np.sum(sol.interval_errors > tolerance))
+        # Hermite-Simpson's grid interleaves midpoints: its intervals span two points of sol.times.
+        t = sol.times[worst * (sol.times.size - 1) // sol.interval_errors.size]
+        print(f"myriad: warning: error estimate {sol.error_estimate:.2e} exceeds the tolerance {tolerance:.3g} "
+              f"on {over} of {sol.interval_errors.size} intervals (largest from t = {t:.4g}): the grid is too "
+              f"coarse for the dynamics; use more --intervals or a higher-order method", file=sys.stderr)
 
 
 def _cmd_sysid(args) -> int:
@@ -181,6 +258,10 @@ def _cmd_bench(args) -> int:
     unknown = [n for n in names if n not in NAMES]
     if unknown:
         return _usage(f"unknown systems {unknown}; shipped: {', '.join(NAMES)}")
+    error = _first_error(_output_file_error(args.json, "--json"), _output_file_error(args.markdown, "--markdown"),
+                         _output_folder_error(args.plots, "--plots"))
+    if error:
+        return _usage(error)
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()

@@ -41,6 +41,9 @@ class Solution:
         simulated_bound_violation: the largest state-bound violation along that re-simulation, relative to the
             bound's magnitude (at least 1): a discretisation can respect bounds at its nodes only.
         compile_seconds, solve_seconds: tracing/compilation vs. the solve itself.
+        error_estimate: the relative local error of the dynamics, max over the grid's intervals and the states
+            (:mod:`~myriad.runtime.transcriptions.error`); NaN where not computed (the indirect sweep).
+        interval_errors: (N,) that error on each interval of the method's grid (max over states), or None.
     """
 
     system: str
@@ -63,6 +66,8 @@ class Solution:
     compile_seconds: float = 0.0
     solve_seconds: float = 0.0
     solver_code: int = 0
+    error_estimate: float = math.nan
+    interval_errors: np.ndarray | None = None
 
     @property
     def max_defect(self) -> float:
@@ -80,6 +85,7 @@ class Solution:
             "simulated_cost": json_number(self.simulated_cost),
             "simulated_defect": [json_number(d) for d in self.simulated_defect],
             "simulated_bound_violation": json_number(self.simulated_bound_violation),
+            "error_estimate": json_number(self.error_estimate),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }
 
