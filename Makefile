@@ -22,7 +22,7 @@ test: setup
 	$(BIN)/ruff check .
 	$(BIN)/myriadc build specs/ --check
 	$(BIN)/myriadc card specs/ -o docs/cards --check
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile  # two workers, a file each: 8.7 min instead of 11.9 on 2 cores
 
 # The main job: the reference table of all 18 systems (published setting + best over all transcriptions),
 # written to out/ as Markdown and JSON, with one plot per system.

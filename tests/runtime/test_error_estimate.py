@@ -153,8 +153,7 @@ def test_a_solve_carries_its_estimate_and_it_falls_at_the_method_order(simple_ca
     ratio = sols[0].error_estimate / sols[1].error_estimate
     assert 0.75 < ratio / expected[sols[0].integrator] < 1.35, ratio
     # Against the CLI's default tolerance 1e-6, N = 20 is fine enough for Hermite-Simpson only (2.9e-4, 7.9e-5,
-    # 3.0e-8), and N = 10 for none.
-    assert sols[0].error_estimate > 1e-6
+    # 3.0e-8). (Its N = 10 estimate, 8.6e-7, sits too near 1e-6 to assert a side: it moved with the BLAS.)
     assert (sols[1].error_estimate < 1e-6) == (sols[1].integrator == "simpson")
 
 

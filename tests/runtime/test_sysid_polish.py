@@ -87,10 +87,13 @@ def test_sysid_config_refuses_a_polish_without_adam():
     assert SysidConfig(model="node").polish == PolishConfig() and SysidConfig().polish is None
 
 
-def test_node_rounds_polish_with_the_plans_as_anchors():
+def test_node_datasets_in_sequence_polish_with_the_plans_as_anchors():
     config = SysidConfig(model="node", trajectories=4, rounds=2, hidden=(8, 8),
                          fit=FitConfig(epochs=20, validate_every=10), polish=PolishConfig(iterations=20))
     report = run_sysid("cancer_treatment", config)
+    assert report.dataset.n_train == 8 and report.rounds == 2  # the second dataset sampled around the first plan
+    assert np.all(np.isfinite(report.dataset.train.states))
+    assert report.history and report.history[-1][0] > report.history[0][0]
     first, second = report.polish
     assert math.isnan(first.anchor_loss[0]) and math.isfinite(second.anchor_loss[0])  # the round-0 plan anchors
     assert second.anchor_loss[1] < second.anchor_loss[0]

@@ -10,7 +10,6 @@ import numpy as np
 from myriad.runtime import load
 from myriad.runtime.cli import main
 from myriad.runtime.sysid.evaluate import evaluate
-from myriad.runtime.sysid.fit import FitConfig
 from myriad.runtime.sysid.models import NeuralODE, Parametric
 from myriad.runtime.sysid.run import SysidConfig, run_sysid
 
@@ -76,12 +75,3 @@ def test_cli_sysid_checks_its_arguments_before_any_work(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--resume needs --checkpoint" in err and "declares no learnable parameters" in err
     assert not (tmp_path / "missing").exists()
-
-
-def test_node_datasets_in_sequence_grow_the_data_around_the_plan():
-    config = SysidConfig(model="node", trajectories=4, rounds=2, hidden=(8, 8), activation="tanh",
-                         fit=FitConfig(epochs=20, validate_every=10))
-    report = run_sysid("cancer_treatment", config)
-    assert report.dataset.n_train == 8 and report.rounds == 2
-    assert np.all(np.isfinite(report.dataset.train.states))
-    assert report.history and report.history[-1][0] > report.history[0][0]
