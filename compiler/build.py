@@ -147,6 +147,26 @@ def _write_atomic(path: Path, text: str) -> None:
         raise
 
 
+def write_outputs(outputs: dict[Path, str], out: Path, check: bool, result: BuildResult) -> None:
+    """Write each changed file atomically into ``out`` (created if missing), or with ``check`` only record which
+    ones differ (with a unified diff); both `myriadc build` and `myriadc card` end here."""
+    if not check:
+        out.mkdir(parents=True, exist_ok=True)
+    for path, text in outputs.items():
+        old = path.read_text(encoding="utf-8") if path.exists() else None
+        shown = _display(path)
+        if old == text:
+            result.unchanged.append(shown)
+        elif check:
+            result.stale.append(shown)
+            result.diffs.append("".join(difflib.unified_diff(
+                (old or "").splitlines(keepends=True), text.splitlines(keepends=True),
+                fromfile=f"{shown} (committed)", tofile=f"{shown} (from specs)")))
+        else:
+            _write_atomic(path, text)
+            result.written.append(shown)
+
+
 def build(paths, out_dir: str | os.PathLike | None = None, check: bool = False) -> BuildResult:
     """Compile specs into ``out_dir`` (default: the package's runtime/systems) with a registry ``__init__.py``.
 
@@ -180,19 +200,5 @@ def build(paths, out_dir: str | os.PathLike | None = None, check: bool = False) 
     )
     outputs[out / "__init__.py"] = render.render_registry(sorted(existing | set(names)))
 
-    if not check:
-        out.mkdir(parents=True, exist_ok=True)
-    for path, text in outputs.items():
-        old = path.read_text(encoding="utf-8") if path.exists() else None
-        shown = _display(path)
-        if old == text:
-            result.unchanged.append(shown)
-        elif check:
-            result.stale.append(shown)
-            result.diffs.append("".join(difflib.unified_diff(
-                (old or "").splitlines(keepends=True), text.splitlines(keepends=True),
-                fromfile=f"{shown} (committed)", tofile=f"{shown} (from specs)")))
-        else:
-            _write_atomic(path, text)
-            result.written.append(shown)
+    write_outputs(outputs, out, check, result)
     return result

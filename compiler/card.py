@@ -12,7 +12,6 @@ without solving anything itself.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import hashlib
 import json
 import math
@@ -25,7 +24,7 @@ import sympy
 from sympy.printing.conventions import split_super_sub
 from sympy.printing.latex import translate
 
-from .build import BuildResult, _display, _read, _symbolic, _write_atomic, spec_files
+from .build import BuildResult, _display, _read, _symbolic, spec_files, write_outputs
 from .errors import SpecError, SpecErrors
 from .optimal_control import derive
 from .render import _env
@@ -376,21 +375,7 @@ def build_cards(paths, out_dir: str | os.PathLike, check: bool = False, results_
         command = " ".join(["myriadc card", *(_display(Path(p)) for p in paths), "-o", _display(out)])
         outputs[out / "README.md"] = render_index([sym for _, sym in syms], results, command)
 
-    if not check:
-        out.mkdir(parents=True, exist_ok=True)
-    for path, text in outputs.items():
-        old = path.read_text(encoding="utf-8") if path.exists() else None
-        shown = _display(path)
-        if old == text:
-            result.unchanged.append(shown)
-        elif check:
-            result.stale.append(shown)
-            result.diffs.append("".join(difflib.unified_diff(
-                (old or "").splitlines(keepends=True), text.splitlines(keepends=True),
-                fromfile=f"{shown} (committed)", tofile=f"{shown} (from specs)")))
-        else:
-            _write_atomic(path, text)
-            result.written.append(shown)
+    write_outputs(outputs, out, check, result)
     if check:
         result.stale.extend(f"{_display(p)} (missing plot)" for p in plots if not p.is_file())
     return result

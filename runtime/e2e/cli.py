@@ -11,6 +11,8 @@ import json
 import sys
 from pathlib import Path
 
+from .._command_args import add_training_outputs, first_error, usage
+
 __all__ = ["add_parser", "run"]
 
 
@@ -33,25 +35,18 @@ def add_parser(sub) -> None:
                    help="implicit mode: when a solve does not converge, skip the step or unroll instead")
     s.add_argument("--learn-cost", nargs="+", default=(), metavar="NAME", help="also learn these cost weights")
     s.add_argument("--seed", type=int, default=0, metavar="S")
-    s.add_argument("--json", metavar="FILE", help="write the record as JSON")
-    s.add_argument("--plots", metavar="DIR", help="the training figure (plans over training) and the loss curve")
-    s.add_argument("--checkpoint", metavar="DIR", help="write checkpoints here")
-    s.add_argument("--resume", action="store_true", help="continue from the checkpoint in --checkpoint")
+    add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 
 
 def _usage(message: str) -> int:
-    print(f"myriad e2e: error: {message}", file=sys.stderr)
-    return 2
+    return usage("e2e", message)
 
 
 def run(args) -> int:
     from .config import E2EConfig
 
-    if args.resume and not args.checkpoint:
-        return _usage("--resume needs --checkpoint DIR")
-    for path in (args.json,):
-        if path and not Path(path).resolve().parent.is_dir():
-            return _usage(f"the folder of {path} does not exist")
+    if first_error(args):
+        return _usage(first_error(args))
     if args.intervals < 1:
         return _usage("--intervals must be at least 1")
     options = {k: v for k, v in (("unroll", args.unroll), ("iterations", args.iterations),

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
+
+from .._command_args import first_error, usage
 
 __all__ = ["add_parser", "run"]
 
@@ -40,8 +41,7 @@ def add_parser(sub) -> None:
 
 
 def _usage(message: str) -> int:
-    print(f"myriad sweep: error: {message}", file=sys.stderr)
-    return 2
+    return usage("sweep", message)
 
 
 def run(args) -> int:
@@ -57,9 +57,8 @@ def run(args) -> int:
             return _usage("--workers applies to --backend process or ray")
         if args.workers < 1:
             return _usage("--workers must be at least 1")
-    for path in (args.json, args.csv, args.markdown):
-        if path and not Path(path).resolve().parent.is_dir():
-            return _usage(f"the folder of {path} does not exist")
+    if first_error(args, files=("json", "csv", "markdown")):
+        return _usage(first_error(args, files=("json", "csv", "markdown")))
     cache_dir = None if args.no_cache else (args.cache_dir or DEFAULT_CACHE_DIR)
     try:
         config = SweepConfig(systems=args.systems, methods=args.methods or ["solve"], seeds=args.seeds,

@@ -11,6 +11,8 @@ import math
 import sys
 from pathlib import Path
 
+from .._command_args import add_training_outputs, first_error, usage
+
 __all__ = ["add_parser", "run"]
 
 
@@ -34,15 +36,11 @@ def add_parser(sub) -> None:
     s.add_argument("--polish", type=int, default=None, metavar="N",
                    help="Neural ODE: L-BFGS iterations after each round's Adam fit, anchored on the earlier plans' "
                         "true trajectories (default 300; 0: none)")
-    s.add_argument("--json", metavar="FILE", help="write the record as JSON")
-    s.add_argument("--plots", metavar="DIR", help="loss curve, learned vs true trajectories, vector field (PNG)")
-    s.add_argument("--checkpoint", metavar="DIR", help="adam: write checkpoints here")
-    s.add_argument("--resume", action="store_true", help="continue from the last checkpoint in --checkpoint")
+    add_training_outputs(s, "loss curve, learned vs true trajectories, vector field (PNG)")
 
 
 def _usage(message: str) -> int:
-    print(f"myriad sysid: error: {message}", file=sys.stderr)
-    return 2
+    return usage("sysid", message)
 
 
 def run(args) -> int:
@@ -51,15 +49,12 @@ def run(args) -> int:
     from .polish import PolishConfig
     from .run import SysidConfig, failed, node_fit_config, run_sysid
 
-    if args.resume and not args.checkpoint:
-        return _usage("--resume needs --checkpoint DIR")
+    if first_error(args):
+        return _usage(first_error(args))
     if args.epochs is not None and args.epochs < 1:
         return _usage("--epochs must be at least 1")
     if args.polish is not None and (args.polish < 0 or args.model != "node"):
         return _usage("--polish N (N >= 0) goes with --model node")
-    for path in (args.json,):
-        if path and not Path(path).resolve().parent.is_dir():
-            return _usage(f"the folder of {path} does not exist")
     try:
         fit = None
         if args.epochs is not None:
