@@ -92,6 +92,11 @@ def _resolve(target: str) -> Path:
 def _cmd_build(args) -> int:
     t0 = time.perf_counter()
     result = build(args.paths, args.out, check=args.check)
+    return _outcome(result, args, t0, "files", f"myriadc build {' '.join(args.paths)}")
+
+
+def _outcome(result, args, t0: float, what: str, fix: str) -> int:
+    """Report a build or card run: errors (1), stale files with their diffs under --check (1), or what was written."""
     if result.errors:
         _report(result.errors)
         return 1
@@ -99,11 +104,10 @@ def _cmd_build(args) -> int:
         for d in result.diffs:
             sys.stdout.write(d)
         if result.stale:
-            print(f"myriadc: stale: {', '.join(result.stale)}; run `myriadc build {' '.join(args.paths)}`",
-                  file=sys.stderr)
+            print(f"myriadc: stale: {', '.join(result.stale)}; run `{fix}`", file=sys.stderr)
             return 1
         if not args.quiet:
-            print(f"myriadc: {len(result.unchanged)} files up to date ({time.perf_counter() - t0:.2f} s)")
+            print(f"myriadc: {len(result.unchanged)} {what} up to date ({time.perf_counter() - t0:.2f} s)")
         return 0
     if not args.quiet:
         for w in result.written:
@@ -185,25 +189,8 @@ def _cmd_card(args) -> int:
         return 0
     t0 = time.perf_counter()
     result = build_cards(targets, args.out, check=args.check, results_path=args.results)
-    if result.errors:
-        _report(result.errors)
-        return 1
-    if args.check:
-        for d in result.diffs:
-            sys.stdout.write(d)
-        if result.stale:
-            print(f"myriadc: stale: {', '.join(result.stale)}; run `myriadc card {' '.join(args.targets)} -o "
-                  f"{args.out}` (results and plots: `python bench/cards.py`)", file=sys.stderr)
-            return 1
-        if not args.quiet:
-            print(f"myriadc: {len(result.unchanged)} cards up to date ({time.perf_counter() - t0:.2f} s)")
-        return 0
-    if not args.quiet:
-        for w in result.written:
-            print(f"wrote {w}")
-        print(f"myriadc: {len(result.written)} written, {len(result.unchanged)} unchanged "
-              f"({time.perf_counter() - t0:.2f} s)")
-    return 0
+    return _outcome(result, args, t0, "cards", f"myriadc card {' '.join(args.targets)} -o {args.out}` (results and "
+                    f"plots: `python bench/cards.py`")
 
 
 def main(argv=None) -> int:

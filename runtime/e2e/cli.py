@@ -45,8 +45,8 @@ def _usage(message: str) -> int:
 def run(args) -> int:
     from .config import E2EConfig
 
-    if first_error(args):
-        return _usage(first_error(args))
+    if error := first_error(args):
+        return _usage(error)
     if args.intervals < 1:
         return _usage("--intervals must be at least 1")
     options = {k: v for k, v in (("unroll", args.unroll), ("iterations", args.iterations),

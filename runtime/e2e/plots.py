@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..sysid.plots import _pyplot, _save
+from ..sysid.plots import _finish_loss_figure, _pyplot, _save
 
 __all__ = ["plot_training", "plot_loss"]
 
@@ -53,9 +53,4 @@ def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLi
     if np.any(h[:, 2] > 0):
         ax.semilogy(h[:, 0], np.maximum(h[:, 2], 1e-300), label="planner KKT residual", color="C1", alpha=0.6)
     ax.set_xlabel("iteration")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(frameon=False)
-    fig.tight_layout()
-    _save(fig, path)
-    return os.fspath(path)
+    return _finish_loss_figure(fig, ax, title, path)

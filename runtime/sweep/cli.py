@@ -57,8 +57,8 @@ def run(args) -> int:
             return _usage("--workers applies to --backend process or ray")
         if args.workers < 1:
             return _usage("--workers must be at least 1")
-    if first_error(args, files=("json", "csv", "markdown")):
-        return _usage(first_error(args, files=("json", "csv", "markdown")))
+    if error := first_error(args, files=("json", "csv", "markdown")):
+        return _usage(error)
     cache_dir = None if args.no_cache else (args.cache_dir or DEFAULT_CACHE_DIR)
     try:
         config = SweepConfig(systems=args.systems, methods=args.methods or ["solve"], seeds=args.seeds,

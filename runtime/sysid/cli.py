@@ -49,8 +49,8 @@ def run(args) -> int:
     from .polish import PolishConfig
     from .run import SysidConfig, failed, node_fit_config, run_sysid
 
-    if first_error(args):
-        return _usage(first_error(args))
+    if error := first_error(args):
+        return _usage(error)
     if args.epochs is not None and args.epochs < 1:
         return _usage("--epochs must be at least 1")
     if args.polish is not None and (args.polish < 0 or args.model != "node"):

@@ -36,6 +36,16 @@ def _save(fig, path) -> None:
         plt.close(fig)
 
 
+def _finish_loss_figure(fig, ax, title: str, path) -> str:
+    """Title, log grid and legend of a loss curve; written atomically; the path written."""
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(frameon=False)
+    fig.tight_layout()
+    _save(fig, path)
+    return os.fspath(path)
+
+
 def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
     """Training and validation loss against the epoch (log scale)."""
     plt = _pyplot()
@@ -46,12 +56,7 @@ def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLi
         ax.semilogy(h[:, 0], h[:, 2], label="validation", color="C1")
     ax.set_xlabel("epoch")
     ax.set_ylabel("trajectory loss (mean squared error)")
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(frameon=False)
-    fig.tight_layout()
-    _save(fig, path)
-    return os.fspath(path)
+    return _finish_loss_figure(fig, ax, title, path)
 
 
 def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: str | os.PathLike, title: str,
