@@ -1,4 +1,5 @@
-"""State and control trajectories of a solution as a PNG, labelled from the spec."""
+"""Figures as PNG files: a solution's state and control trajectories, labelled from the spec, and the helpers every
+learner's figures share (the Agg backend, atomic writes, the loss-curve finish)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,40 @@ import os
 
 import numpy as np
 
-__all__ = ["plot_solution"]
+__all__ = ["finish_loss_figure", "plot_solution", "pyplot", "save_png"]
+
+
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (files only)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)  # files only: never needs a display
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_png(fig, path) -> None:
+    """Write the PNG atomically (a reader never sees half a file) and free the figure."""
+    from .atomic import atomic_open
+
+    try:
+        with atomic_open(path) as f:
+            fig.savefig(f, format="png", dpi=110)
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+
+
+def finish_loss_figure(fig, ax, title: str, path) -> str:
+    """Title, log grid and legend of a loss curve; written atomically; the path written."""
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(frameon=False)
+    fig.tight_layout()
+    save_png(fig, path)
+    return os.fspath(path)
 
 
 def _label(name: str, description: str, units: str) -> str:
@@ -28,11 +62,7 @@ def plot_solution(solution, path: str | os.PathLike, system=None) -> str:
     Returns:
         The path written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)  # files only: never needs a display
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     if system is None:
         from .loader import load
 
@@ -76,6 +106,5 @@ def plot_solution(solution, path: str | os.PathLike, system=None) -> str:
     fig.suptitle(f"{system.title}: {solution.transcription} + {solution.solver}, cost {solution.cost:.6g} ({status})",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_png(fig, path)
     return os.fspath(path)

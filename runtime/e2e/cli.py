@@ -82,7 +82,7 @@ def run(args) -> int:
           f"planned on the model, applied to the true system: cost {rec['achieved_cost']} (true optimum "
           f"{rec['optimal_cost']}), defect {rec['achieved_defect'] or 'none required'}")
     if args.json:
-        from ..sysid._atomic import atomic_write_text
+        from ..atomic import atomic_write_text
 
         atomic_write_text(args.json, json.dumps(rec, indent=1))
     if args.plots:

@@ -37,10 +37,10 @@ from ..nlp import NLP
 from ..solvers.base import ScaledProblem, split_constraints
 from ..solvers.extragradient import Extragradient
 from ..solvers.extragradient.box import make_box
-from ..solvers.extragradient.lagrangian import Lagrangian, _Point
-from ..solvers.extragradient.loop import _optax_promotion, step_rules
+from ..solvers.extragradient.lagrangian import Lagrangian, Point
+from ..solvers.extragradient.loop import optax_promotion, step_rules
 from ..solvers.extragradient.penalty import PenaltySchedule
-from ..solvers.extragradient.scaling import _Scales, make_scales
+from ..solvers.extragradient.scaling import Scales, make_scales
 
 __all__ = ["PlannerState", "UnrolledPlanner", "default_planner_solver"]
 
@@ -69,8 +69,8 @@ class PlannerState(NamedTuple):
     rho: jax.Array
     v_ref: jax.Array
     k: jax.Array
-    scales: _Scales
-    point: _Point
+    scales: Scales
+    point: Point
 
 
 class UnrolledPlanner:
@@ -109,7 +109,7 @@ class UnrolledPlanner:
         box, solver = self.box, self.solver
         p0 = box.start(z0 / self.scale)
         duals0 = tuple(jnp.zeros(n, z0.dtype) for n in self._sizes)
-        with _optax_promotion():
+        with optax_promotion():
             state_p, state_d = self.primal.init(p0), self.dual.init(duals0)
         rho = self.penalty.initial(z0.dtype)
         scales = make_scales(self.problem.objective, self.problem.constraints, box.to_w(p0), data, z0.dtype,
@@ -130,9 +130,9 @@ class UnrolledPlanner:
 
     # ---- the steps -------------------------------------------------------------------------------------------
 
-    def _project_step(self, origin_p, origin_duals, state_p, state_d, at: _Point, d):
+    def _project_step(self, origin_p, origin_duals, state_p, state_d, at: Point, d):
         # The solver's projected optax step (loop.make_solve_fn's `step`): the primal rule acts on v = p / d.
-        with _optax_promotion():
+        with optax_promotion():
             update_v, state_p = self.primal.update(at.grad_p * d, state_p, origin_p / d)
             update_d, state_d = self.dual.update(at.grad_duals, state_d, origin_duals)
         p = self.box.project(origin_p + d * update_v)

@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..sysid.plots import _finish_loss_figure, _pyplot, _save
+from ..plotting import finish_loss_figure, pyplot, save_png
 
 __all__ = ["plot_training", "plot_loss"]
 
@@ -17,7 +17,7 @@ def plot_training(system: Any, times: Any, snapshots: Sequence[tuple[int, Any, A
                   expert_states: Any, path: str | os.PathLike, title: str) -> str:
     """One panel per control and per state: every stored plan (controls, and its states under the model) in a
     colour running from early (light) to late (dark) training at alpha 0.25, the expert in black on top."""
-    plt = _pyplot()
+    plt = pyplot()
     t = np.asarray(times)
     names = [f"control {n}" for n in system.control_names] + [f"state {n}" for n in system.state_names]
     panels = len(names)
@@ -40,17 +40,17 @@ def plot_training(system: Any, times: Any, snapshots: Sequence[tuple[int, Any, A
     sm = plt.cm.ScalarMappable(cmap=cmap, norm=plt.Normalize(0, last / 0.9))
     fig.colorbar(sm, ax=[a[0] for a in axes], label="iteration", fraction=0.03, pad=0.02)
     fig.suptitle(title, fontsize=10)
-    _save(fig, path)
+    save_png(fig, path)
     return os.fspath(path)
 
 
 def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
     """The imitation loss (and the planner's KKT residual) against the iteration, log scale."""
-    plt = _pyplot()
+    plt = pyplot()
     h = np.asarray(history, dtype=float).reshape(-1, 3)
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     ax.semilogy(h[:, 0], np.maximum(h[:, 1], 1e-300), label="imitation loss", color="C0")
     if np.any(h[:, 2] > 0):
         ax.semilogy(h[:, 0], np.maximum(h[:, 2], 1e-300), label="planner KKT residual", color="C1", alpha=0.6)
     ax.set_xlabel("iteration")
-    return _finish_loss_figure(fig, ax, title, path)
+    return finish_loss_figure(fig, ax, title, path)

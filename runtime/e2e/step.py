@@ -25,7 +25,7 @@ import optax
 
 from ..data import ProblemData
 from ..nlp import NLP
-from ..solvers.extragradient.loop import _optax_promotion
+from ..solvers.extragradient.loop import optax_promotion
 from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
@@ -84,7 +84,7 @@ class Program:
         return sum(terms[1:], terms[0]), (controls, states)
 
     def init_opt(self, train: Any) -> Any:
-        with _optax_promotion():
+        with optax_promotion():
             return self.optimizer.init(train)
 
     def init_carry(self, train: Any, frozen: Any, consts: Any) -> Any:
@@ -146,7 +146,7 @@ class Program:
         # stops only at a non-finite loss, or a non-finite gradient that would have been used.
         finite = jnp.isfinite(value) & (~ok | _all_finite(grad))
         apply = ok & finite & _all_finite(grad)
-        with _optax_promotion():
+        with optax_promotion():
             updates, new_opt = self.optimizer.update(grad, opt_state, train)
         new_train = optax.apply_updates(train, updates)
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(apply, a, b), new, old)  # noqa: E731

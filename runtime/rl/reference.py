@@ -154,7 +154,7 @@ def _dumps(doc: dict[str, Any]) -> str:
 
 def write(path, names=NAMES, previous: dict[str, Any] | None = None, progress=print) -> dict[str, Any]:
     """Compute ``names`` and write the file; the other shipped systems keep their ``previous`` records."""
-    from ..sysid._atomic import atomic_write_text
+    from ..atomic import atomic_write_text
 
     fresh = {}
     for name in names:

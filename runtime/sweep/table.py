@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 from typing import Any, Sequence
 
-from ..sysid._atomic import atomic_write_text
+from ..atomic import atomic_write_text
 from .kinds import KINDS
 
 __all__ = ["columns", "csv_text", "json_text", "markdown", "write_tables"]

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._atomic import atomic_open, atomic_write_text
+from ..atomic import atomic_open, atomic_write_text
 
 __all__ = [
     "Checkpoint", "CheckpointMismatch", "config_identity", "dataset_id", "describe", "load_checkpoint",

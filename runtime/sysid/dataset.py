@@ -34,10 +34,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..atomic import atomic_open, atomic_write_text
 from ..integrators import INTEGRATORS, AbstractIntegrator, Heun, rollout
 from ..loader import load
 from ..system import System
-from ._atomic import atomic_open, atomic_write_text
 
 __all__ = ["Sampling", "Trajectories", "Dataset", "make_dataset", "save_dataset", "load_dataset"]
 

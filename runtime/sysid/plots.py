@@ -11,44 +11,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..plotting import finish_loss_figure, pyplot, save_png
+
 __all__ = ["plot_loss", "plot_trajectories", "plot_vector_field"]
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)  # files only: never needs a display
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path) -> None:
-    """Write the PNG atomically (a reader never sees half a file) and free the figure."""
-    from ._atomic import atomic_open
-
-    try:
-        with atomic_open(path) as f:
-            fig.savefig(f, format="png", dpi=110)
-    finally:
-        import matplotlib.pyplot as plt
-
-        plt.close(fig)
-
-
-def _finish_loss_figure(fig, ax, title: str, path) -> str:
-    """Title, log grid and legend of a loss curve; written atomically; the path written."""
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3, which="both")
-    ax.legend(frameon=False)
-    fig.tight_layout()
-    _save(fig, path)
-    return os.fspath(path)
 
 
 def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
     """Training and validation loss against the epoch (log scale)."""
-    plt = _pyplot()
+    plt = pyplot()
     h = np.asarray(history, dtype=float).reshape(-1, 3)
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     ax.semilogy(h[:, 0], h[:, 1], label="training", color="C0")
@@ -56,14 +26,14 @@ def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLi
         ax.semilogy(h[:, 0], h[:, 2], label="validation", color="C1")
     ax.set_xlabel("epoch")
     ax.set_ylabel("trajectory loss (mean squared error)")
-    return _finish_loss_figure(fig, ax, title, path)
+    return finish_loss_figure(fig, ax, title, path)
 
 
 def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: str | os.PathLike, title: str,
                       max_trajectories: int = 3) -> str:
     """Observed (true system) against predicted (learned model, rolled out from the same start with the same
     controls) states, one panel per state, for a few held-out trajectories."""
-    plt = _pyplot()
+    plt = pyplot()
     t = np.asarray(times)
     obs, pred = np.asarray(observed), np.asarray(predicted)
     n = system.n_states
@@ -87,7 +57,7 @@ def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: s
         ax.set_xlabel("t", fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
     return os.fspath(path)
 
 
@@ -102,7 +72,7 @@ def plot_vector_field(system, learned, times: Any, states: Any, controls: Any, p
     """
     if system.n_states != 2:
         raise ValueError(f"{system.name}: a vector-field plot needs two states, it has {system.n_states}")
-    plt = _pyplot()
+    plt = pyplot()
     t, xs, us = np.asarray(times), np.asarray(states), np.asarray(controls)
     lo, hi = xs.min(axis=0), xs.max(axis=0)
     pad = 0.15 * np.maximum(hi - lo, 1e-3)
@@ -130,5 +100,5 @@ def plot_vector_field(system, learned, times: Any, states: Any, controls: Any, p
     axes[0].legend(frameon=False, fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
     return os.fspath(path)

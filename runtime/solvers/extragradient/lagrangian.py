@@ -35,12 +35,12 @@ import numpy as np
 
 from .box import Box
 from .penalty import PenaltySchedule
-from .scaling import _Scales
+from .scaling import Scales
 
-__all__ = ["Lagrangian"]
+__all__ = ["Lagrangian", "Point"]
 
 
-class _Point(NamedTuple):
+class Point(NamedTuple):
     """The (augmented) Lagrangian's derivatives at one primal-dual point."""
 
     grad_p: jax.Array  # descent direction's gradient for the primal parameters p
@@ -71,7 +71,7 @@ class Lagrangian(NamedTuple):
     box: Box
     penalty: PenaltySchedule
 
-    def evaluate(self, p, duals, rho, data, scales: _Scales) -> _Point:
+    def evaluate(self, p, duals, rho, data, scales: Scales) -> Point:
         """The derivatives, the KKT residual and the multiplier estimates at ``(to_w(p), duals)`` for penalty ``rho``.
 
         Returns ``grad_p`` (the chain rule through the box), the dual "gradients" ``-(h, ascent_u, ascent_l) * rho /
@@ -114,4 +114,4 @@ class Lagrangian(NamedTuple):
         stationarity = jnp.max(jnp.abs(w - jnp.clip(w - grad_w, box.lo, box.hi)), initial=0.0)
         kkt = jnp.maximum(jnp.maximum(stationarity, violation), complementarity)
         kkt = jnp.where(jnp.isfinite(kkt) & jnp.all(jnp.isfinite(w)), kkt, jnp.inf)
-        return _Point(grad_w * box.dw_dp(p), grad_duals, kkt, violation, y)
+        return Point(grad_w * box.dw_dp(p), grad_duals, kkt, violation, y)

@@ -25,14 +25,14 @@ import optax
 
 from ..base import ScaledProblem, split_constraints
 from .box import make_box
-from .lagrangian import Lagrangian, _Point
+from .lagrangian import Lagrangian, Point
 from .penalty import PenaltySchedule
 from .scaling import make_scales
 
 if TYPE_CHECKING:
     from .solver import Extragradient
 
-__all__ = ["ExtragradientSolution", "make_solve_fn"]
+__all__ = ["ExtragradientSolution", "make_solve_fn", "optax_promotion", "step_rules"]
 
 
 class ExtragradientSolution(NamedTuple):
@@ -54,7 +54,7 @@ class ExtragradientSolution(NamedTuple):
     violation: jax.Array
 
 
-def _optax_promotion():
+def optax_promotion():
     """Standard dtype promotion for optax's own arithmetic only.
 
     NOTE: optax mixes Python floats with its int32 step counter (``b1 ** count`` in adam's bias correction), which
@@ -88,14 +88,14 @@ def make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[An
         lam, mu_u, mu_l = duals
         return lam, jnp.maximum(mu_u, 0.0), jnp.maximum(mu_l, 0.0)
 
-    def step(origin_p, origin_duals, state_p, state_d, at: _Point, d):
+    def step(origin_p, origin_duals, state_p, state_d, at: Point, d):
         """One projected optax step from ``origin`` along the gradients ``at`` a (possibly other) point.
 
         The primal rule acts on ``v = p / d``: it sees the gradient ``d * grad_p`` and its step ``dv`` is ``d * dv`` in
         ``p``. For AMSGrad, whose steps are about ``lr`` whatever the gradient's size, that makes a variable's steps
         proportional to its magnitude ``d``.
         """
-        with _optax_promotion():
+        with optax_promotion():
             update_v, state_p = primal.update(at.grad_p * d, state_p, origin_p / d)
             update_d, state_d = dual.update(at.grad_duals, state_d, origin_duals)
         p = box.project(origin_p + d * update_v)
@@ -106,7 +106,7 @@ def make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[An
         z0 = jnp.asarray(z0)
         p0 = box.start(z0 / scale)
         duals0 = (jnp.zeros(eq_idx.size, z0.dtype), jnp.zeros(up_idx.size, z0.dtype), jnp.zeros(lo_idx.size, z0.dtype))
-        with _optax_promotion():
+        with optax_promotion():
             states0 = primal.init(p0), dual.init(duals0)
         rho_init = penalty.initial(z0.dtype)
         scales = make_scales(problem.objective, problem.constraints, box.to_w(p0), data, z0.dtype, boxed=box.boxed,

@@ -36,7 +36,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["make_scales"]
+__all__ = ["Scales", "make_scales"]
 
 # IPOPT's nlp_scaling_max_gradient: the objective is scaled so its gradient at the start is at most this.
 _MAX_START_GRADIENT = 100.0
@@ -50,7 +50,7 @@ _ROW_SCALE_LIMITS = (1e-4, 1e4)
 _JACOBIAN_CHUNK = 32
 
 
-class _Scales(NamedTuple):
+class Scales(NamedTuple):
     """Per-solve scale factors, computed from the start point inside the jitted solve (so they may depend on data)."""
 
     sigma: jax.Array  # objective factor: the solver minimises sigma F
@@ -78,8 +78,8 @@ def _row_max_abs(c_fn: Callable, w: jax.Array, d: jax.Array, data: Any, m: int) 
 
 
 def make_scales(f: Callable, c_fn: Callable | None, w0: jax.Array, data: Any, dtype: Any, *, boxed: jax.Array,
-                m: int, from_guess: bool, scale_objective: bool) -> _Scales:
-    """The :class:`_Scales` at the start ``w0`` (in ``w``, after the box), as in the module docstring.
+                m: int, from_guess: bool, scale_objective: bool) -> Scales:
+    """The :class:`Scales` at the start ``w0`` (in ``w``, after the box), as in the module docstring.
 
     Args:
         f, c_fn: the scaled objective and constraints ``(w, data) -> ...`` (``c_fn`` unused when ``m == 0``).
@@ -105,4 +105,4 @@ def make_scales(f: Callable, c_fn: Callable | None, w0: jax.Array, data: Any, dt
     g0 = jnp.max(jnp.abs(column * jax.grad(f)(w0, data)), initial=0.0)
     sigma = jnp.where(jnp.isfinite(g0), jnp.minimum(1.0, _MAX_START_GRADIENT / jnp.maximum(g0, 1e-300)), 1.0)
     sigma = sigma if scale_objective else jnp.ones_like(sigma)
-    return _Scales(sigma.astype(dtype), column, row)
+    return Scales(sigma.astype(dtype), column, row)
