@@ -7,5 +7,7 @@ from .errors import CodegenError as CodegenError
 from .errors import SpecError as SpecError
 from .errors import SpecErrors as SpecErrors
 from .schema import SCHEMA_VERSION as SCHEMA_VERSION
+from .schema import SUPPORTED_SCHEMAS as SUPPORTED_SCHEMAS
 
-__all__ = ["build", "compile_file", "compile_spec", "CodegenError", "SpecError", "SpecErrors", "SCHEMA_VERSION"]
+__all__ = ["build", "compile_file", "compile_spec", "CodegenError", "SpecError", "SpecErrors", "SCHEMA_VERSION",
+           "SUPPORTED_SCHEMAS"]

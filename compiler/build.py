@@ -58,7 +58,10 @@ def compile_spec(text: str, display: str = "<spec>") -> Compiled:
 def _at_field(sym: SymbolicProblem, exc: CodegenError) -> SpecError:
     spec = sym.spec
     field = getattr(exc, "field", "") or ""
-    if field.startswith("cost.terminal") and spec.terminal is not None:
+    path = {f"path_constraints.{c.name}": c.expr.loc for c in spec.path_constraints}
+    if field in path:
+        loc = path[field]
+    elif field.startswith("cost.terminal") and spec.terminal is not None:
         loc = spec.terminal.loc
     elif field.startswith("cost"):
         loc = spec.running.loc

@@ -5,6 +5,11 @@
 
     cs = to_casadi(check_file("specs/pendulum.yaml"))   # or compile_file(path).symbolic; or export_file(path)
     cs.f(x, u, t, cs.p0)                                 # casadi DM; also cs.L(x, u, t, p), cs.phi(x, t, p)
+    cs.g(x, u, t, cs.p0)                                 # path constraints (schema 2): cs.path_lower <= g <= ...
+
+A schema 2 spec also carries its free final time (``free_horizon``, ``horizon_bounds``; ``horizon`` is then the
+guess); :mod:`.casadi_opti` poses the whole problem with ``casadi.Opti`` (path constraints at every node, T a
+variable).
 
 This is an independent peer of the generated JAX code (bench/casadi_peer.py solves the same discretised problems
 with CasADi + IPOPT; tests/compiler/test_casadi_export.py checks that both agree). It starts from the compiler's
@@ -55,7 +60,8 @@ class CasadiSystem:
     Functions (all in minimisation form, like the generated JAX system):
         f(x, u, t, p) -> (n_states,) state derivative;
         L(x, u, t, p) -> scalar running cost;
-        phi(x, t, p) -> scalar terminal cost.
+        phi(x, t, p) -> scalar terminal cost (t is the final time T);
+        g(x, u, t, p) -> (n_path,) path constraints, path_lower <= g <= path_upper along the trajectory (schema 2).
     ``x`` is (n_states,), ``u`` (n_controls,), ``t`` a scalar and ``p`` (n_params,) the parameter values in
     ``param_names`` order (``p0`` holds the spec's values). Infinite bounds are ``+-math.inf``; ``x_final`` is None
     where the final state is free.
@@ -76,7 +82,20 @@ class CasadiSystem:
     u_lower: tuple[float, ...]
     u_upper: tuple[float, ...]
     x_final: tuple[float | None, ...]
-    horizon: float
+    horizon: float  # the fixed final time, or the guess of a free one
+    g: Any = None
+    path_names: tuple[str, ...] = ()
+    path_lower: tuple[float, ...] = ()
+    path_upper: tuple[float, ...] = ()
+    horizon_bounds: tuple[float, float] | None = None  # a free final time's bounds, else None
+
+    @property
+    def free_horizon(self) -> bool:
+        return self.horizon_bounds is not None
+
+    @property
+    def n_path(self) -> int:
+        return len(self.path_names)
 
     @property
     def n_states(self) -> int:
@@ -139,6 +158,8 @@ def to_casadi(sym: SymbolicProblem) -> CasadiSystem:
         if n else ca.SX(0, 1)
     L_expr = sympy_to_casadi(d.L, running, field="cost.running")
     phi_expr = sympy_to_casadi(d.phi, terminal, field="cost.terminal")
+    g_expr = ca.vertcat(*(sympy_to_casadi(e, running, field=f"path_constraints.{c.name}")
+                          for e, c in zip(sym.path, sym.spec.path_constraints))) if sym.path else ca.SX(0, 1)
     spec = sym.spec
     return CasadiSystem(
         name=spec.name,
@@ -157,6 +178,11 @@ def to_casadi(sym: SymbolicProblem) -> CasadiSystem:
         u_upper=tuple(float(v) for v in sym.u_upper),
         x_final=tuple(None if v is None else float(v) for v in sym.x_final),
         horizon=float(sym.horizon),
+        g=ca.Function("g", [x, u, t, p], [g_expr], ["x", "u", "t", "p"], ["g"]),
+        path_names=tuple(c.name for c in spec.path_constraints),
+        path_lower=tuple(float(v) for v in sym.path_lower),
+        path_upper=tuple(float(v) for v in sym.path_upper),
+        horizon_bounds=None if sym.horizon_bounds is None else tuple(float(v) for v in sym.horizon_bounds),
     )
 
 

@@ -76,6 +76,11 @@ def check_names(spec: ProblemSpec) -> None:
                              "parameters and definitions share one namespace", loc)
             seen[name] = kind
 
+    for c in spec.path_constraints:
+        if not _IDENT.match(c.name):
+            raise _error(spec, f"path constraint name `{_show(c.name)}` must be an ASCII identifier (letters, digits "
+                         "and `_`, starting with a letter), e.g. `keep_out`", c.loc)
+
     state_names = [s.name for s in spec.states]
     for eq in spec.dynamics:
         if eq.name not in state_names:
@@ -107,8 +112,11 @@ def check_problem(sym: SymbolicProblem) -> None:
         if xf is not None and not lo <= xf <= hi:
             raise _error(spec, f"required final value {xf:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]",
                          s.final.loc)
+    if sym.free_horizon:
+        _check_free_horizon(sym)
     if not sym.horizon > 0:
         raise _error(spec, f"horizon must be positive, got {sym.horizon:g}", spec.horizon.loc)
+    _check_path_bounds(sym)
     controls = set(sym.controls)
     used = sym.terminal.free_symbols & controls
     if used and spec.terminal is not None:
@@ -121,6 +129,7 @@ def check_problem(sym: SymbolicProblem) -> None:
     exprs.append(("cost.running", sym.running, spec.running))
     if spec.terminal is not None:
         exprs.append(("cost.terminal", sym.terminal, spec.terminal))
+    exprs += [(f"path_constraints.{c.name}", e, c.expr) for c, e in zip(spec.path_constraints, sym.path)]
     for field, e, src in exprs:
         # AccumBounds: what sympy makes of sin(inf) or cos(inf), which no code can print
         if e.has(sympy.zoo, sympy.nan, sympy.AccumBounds) or e.has(sympy.oo) or e.has(-sympy.oo):
@@ -134,6 +143,48 @@ def check_problem(sym: SymbolicProblem) -> None:
                          "or inf); check the arguments of its functions", src.loc)
         if e.is_Relational or isinstance(e, (sympy.logic.boolalg.BooleanFunction, sympy.logic.boolalg.BooleanAtom)):
             raise _error(spec, f"`{field}` is a condition, not a value; use where(cond, a, b)", src.loc)
+
+
+def _check_free_horizon(sym: SymbolicProblem) -> None:
+    """0 < lower <= guess <= upper, all finite: the transcriptions scale time by T within these bounds."""
+    spec, free = sym.spec, sym.spec.free_horizon
+    lo, hi = sym.horizon_bounds
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise _error(spec, f"bounds of the free final time are [{lo:g}, {hi:g}]; both must be finite (the final "
+                     "time is scaled within them), e.g. `bounds: [0.5, 10]`", free.bounds_loc)
+    if lo > hi:
+        raise _error(spec, f"bounds of the free final time are reversed: lower {lo:g} > upper {hi:g}; write "
+                     "`[lower, upper]`", free.bounds_loc)
+    if not lo > 0:
+        raise _error(spec, f"the lower bound of the free final time must be positive, got {lo:g}; a horizon of "
+                     "zero length has no trajectory, e.g. `bounds: [0.1, 10]`", free.bounds_loc)
+    g = sym.horizon
+    if not math.isfinite(g):
+        raise _error(spec, f"the guess of the free final time must be a finite number inside its bounds [{lo:g}, "
+                     f"{hi:g}], got {g:g}", free.guess.loc)
+    if not lo <= g <= hi:
+        raise _error(spec, f"the guess {g:g} of the free final time is outside its bounds [{lo:g}, {hi:g}]; choose a "
+                     "guess between them or widen the bounds", free.guess.loc)
+
+
+def _check_path_bounds(sym: SymbolicProblem) -> None:
+    """Each path constraint: well-ordered bounds, at least one finite, and something a control can change."""
+    spec = sym.spec
+    decisions = set(sym.states) | set(sym.controls)
+    for c, e, lo, hi in zip(spec.path_constraints, sym.path, sym.path_lower, sym.path_upper):
+        if lo == math.inf or hi == -math.inf:
+            raise _error(spec, f"bounds of path constraint `{c.name}` are [{lo}, {hi}]: the lower bound cannot be "
+                         "+inf nor the upper -inf; write `[lower, .inf]` or `[-.inf, upper]`", c.bounds_loc)
+        if lo > hi:
+            raise _error(spec, f"bounds of path constraint `{c.name}` are reversed: lower {lo:g} > upper {hi:g}; "
+                         "write `[lower, upper]`", c.bounds_loc)
+        if math.isinf(lo) and math.isinf(hi):
+            raise _error(spec, f"path constraint `{c.name}` has bounds [-inf, inf], so it constrains nothing; give "
+                         "one side a finite bound or remove the constraint", c.bounds_loc)
+        if not e.free_symbols & decisions:
+            raise _error(spec, f"path constraint `{c.name}` uses no state or control, so no trajectory can change "
+                         f"it (it is `{_show(str(e))}`); write an expression of the states and controls, or remove "
+                         "it", c.expr.loc)
 
 
 def _non_real_constant(e: sympy.Expr) -> sympy.Expr | None:

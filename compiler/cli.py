@@ -146,7 +146,7 @@ def _cmd_list(args) -> int:
             continue
         s = sym.spec
         fixed = sum(v is not None for v in sym.x_final)
-        rows.append((s.name, str(len(s.states)), str(len(s.controls)), f"{sym.horizon:g}", s.sense[:3],
+        rows.append((s.name, str(len(s.states)), str(len(s.controls)), _horizon(sym), s.sense[:3],
                      str(fixed), _clean(s.title)))
     head = ("name", "states", "controls", "T", "sense", "fixed x(T)", "title")
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
@@ -156,6 +156,10 @@ def _cmd_list(args) -> int:
         _report(errors)
         return 1
     return 0
+
+
+def _horizon(sym) -> str:
+    return f"free [{sym.horizon_bounds[0]:g}, {sym.horizon_bounds[1]:g}]" if sym.free_horizon else f"{sym.horizon:g}"
 
 
 def _cmd_show(args) -> int:
@@ -170,7 +174,11 @@ def _cmd_show(args) -> int:
                                      for n, lo, hi, x0, xf in states))
     print("  controls: " + ", ".join(f"{n} in [{lo:g}, {hi:g}]" for n, lo, hi in
                                      zip((v.name for v in s.controls), sym.u_lower, sym.u_upper)))
-    print(f"  T = {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
+    if sym.free_horizon:
+        lo, hi = sym.horizon_bounds
+        print(f"  T free in [{lo:g}, {hi:g}], guess {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
+    else:
+        print(f"  T = {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
     width = max(len(k) for k, _ in c.data.summary)
     for k, v in c.data.summary:
         print(f"  {_clean(k).rjust(width)} = {_clean(v)}")

@@ -103,6 +103,60 @@ def _lit(v) -> str:
     raise TypeError(type(v))
 
 
+def path_kind(expr, sym: SymbolicProblem) -> str:
+    """"state" (no control in it: a pure state constraint), "control" (no state) or "mixed"."""
+    has_x, has_u = bool(expr.free_symbols & set(sym.states)), bool(expr.free_symbols & set(sym.controls))
+    return "mixed" if has_x and has_u else ("control" if has_u else "state")
+
+
+def _schema2_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
+    """The schema 2 attributes, written only into schema 2 modules: a schema 1 module keeps its bytes and inherits
+    the same values as defaults from the runtime's System."""
+    spec = sym.spec
+    if spec.schema < 2:
+        return ()
+    return (
+        ("free_horizon", _lit(sym.free_horizon)),
+        ("horizon_bounds", _lit(sym.horizon_bounds)),
+        ("horizon_guess", _lit(sym.horizon if sym.free_horizon else None)),
+        ("path_constraint_names", _lit(tuple(c.name for c in spec.path_constraints))),
+        ("path_constraint_descriptions", _lit(tuple(c.description for c in spec.path_constraints))),
+        ("path_constraint_kinds", _lit(tuple(path_kind(e, sym) for e in sym.path))),
+        ("path_lower", _lit(sym.path_lower)),
+        ("path_upper", _lit(sym.path_upper)),
+    )
+
+
+def _path_functions(sym: SymbolicProblem, d) -> list[CodegenFunction]:
+    """g(x, u, t, p) and its Jacobians; none without path constraints (the runtime's System returns empty arrays)."""
+    if not sym.path:
+        return []
+    g, X, U = sym.path, sym.states, sym.controls
+    try:
+        return _path_function_list(sym, d, g, X, U)
+    except CodegenError:
+        # Name the constraint that cannot be printed, so the error points at its own expression.
+        for c, gi in zip(sym.spec.path_constraints, g):
+            field = f"path_constraints.{c.name}"
+            _function("path_constraints", "", ("x", "u", "t", "p"), (gi,), "vector", sym, d, field)
+            _function("path_constraints_jac_x", "", ("x", "u", "t", "p"), tuple(_d(gi, xj) for xj in X), "vector",
+                      sym, d, field)
+            _function("path_constraints_jac_u", "", ("x", "u", "t", "p"), tuple(_d(gi, uj) for uj in U), "vector",
+                      sym, d, field)
+        raise
+
+
+def _path_function_list(sym, d, g, X, U) -> list[CodegenFunction]:
+    return [
+        _function("path_constraints", "g(x, u, t, p), shape (n_path,); path_lower <= g <= path_upper along the path.",
+                  ("x", "u", "t", "p"), g, "vector", sym, d, "path_constraints"),
+        _function("path_constraints_jac_x", "dg/dx, shape (n_path, n_states).", ("x", "u", "t", "p"),
+                  tuple(tuple(_d(gi, xj) for xj in X) for gi in g), "matrix", sym, d, "path_constraints"),
+        _function("path_constraints_jac_u", "dg/du, shape (n_path, n_controls).", ("x", "u", "t", "p"),
+                  tuple(tuple(_d(gi, uj) for uj in U) for gi in g), "matrix", sym, d, "path_constraints"),
+    ]
+
+
 def safe_comment(text: str) -> str:
     """Text for a generated comment: one line of printable ASCII."""
     return "".join(ch if 32 <= ord(ch) < 127 else "?" for ch in text)
@@ -146,6 +200,8 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         except CodegenError as exc:  # u* is optional: the system still compiles, the sweep then refuses it
             d = dataclasses.replace(d, u_star=None, u_star_kind="none", u_star_note=f"u* cannot be printed: {exc}")
 
+    fns += _path_functions(sym, d)
+
     learnable = tuple(p.name for p in spec.parameters if p.learnable)
     guesses = tuple(g for p, g in zip(spec.parameters, sym.guesses) if p.learnable)
     used_t = sym.time in (set().union(*(e.free_symbols for e in d.f)) | d.L.free_symbols)
@@ -159,6 +215,7 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
         ("schema", _lit(spec.schema)),
         ("sense", _lit(spec.sense)),
         ("horizon", _lit(sym.horizon)),
+        *_schema2_metadata(sym),
         ("state_names", _lit(tuple(s.name for s in spec.states))),
         ("state_descriptions", _lit(tuple(s.description for s in spec.states))),
         ("state_units", _lit(tuple(s.units for s in spec.states))),
@@ -196,6 +253,12 @@ def lower(sym: SymbolicProblem, display_path: str) -> CodegenData:
     summary += [(f"d{lam_names[str(lam)]}/dt", show(c)) for lam, c in zip(d.lam, d.costate)]
     summary += [(f"{lam_names[str(lam)]}(T)", show(c) if xf is None else f"free: {x}(T) = {xf:g} is required")
                 for lam, c, x, xf in zip(d.lam, d.terminal_costate, X, sym.x_final)]
+    if sym.free_horizon:
+        # Free final time: the transversality condition H(T) + dphi/dT = 0 (phi's `t` is the final time).
+        summary.append(("H(T)", f"{show(-_d(d.phi, sym.time))} (free final time in [{sym.horizon_bounds[0]:g}, "
+                                f"{sym.horizon_bounds[1]:g}])"))
+    summary += [(f"path {c.name}", f"{lo:g} <= {show(e)} <= {hi:g}")
+                for c, e, lo, hi in zip(spec.path_constraints, sym.path, sym.path_lower, sym.path_upper)]
     if d.u_star is None:
         summary.append(("u*", f"not derived: {d.u_star_note}"))
     else:

@@ -6,6 +6,9 @@ From a checked :class:`SymbolicProblem` (a ``maximize`` spec's payoff is negated
   * the optimal-control characterisation: u* from ∂H/∂u = 0 when H is quadratic in u with a positive, decoupled
     curvature; the switching function's sign (bang-bang) when H is linear in u with finite bounds; else "none" and
     the reason. u* is clipped to the control bounds (exact for decoupled quadratics).
+With path constraints (schema 2) H carries no multiplier terms: u* is withdrawn when a constraint involves a control
+and kept, with a caveat, for pure state constraints (:func:`_with_path_constraints`). A free final time adds the
+transversality condition H(T) = -dφ/dt(T), which lowering states in the summary.
 Lowering (:mod:`.lower`) prints these, `myriadc show` displays them and the CasADi export starts from them; all
 derivatives are taken almost everywhere by :func:`_d`.
 """
@@ -65,7 +68,28 @@ def derive(sym: SymbolicProblem) -> Derived:
         u_star, kind, note = None, "none", f"u* could not be characterised symbolically ({type(exc).__name__})"
     if u_star is not None and any(e.free_symbols & set(sym.controls) for e in u_star):
         u_star, kind, note = None, "none", "dH/du = 0 has no closed form here (u* would still depend on u)"
+    u_star, kind, note = _with_path_constraints(sym, u_star, kind, note)
     return Derived(f, L, phi, lam, H, costate, dH_du, terminal_costate, u_star, kind, note)
+
+
+def _with_path_constraints(sym: SymbolicProblem, u_star, kind: str, note: str):
+    """What survives of u* when the spec has path constraints (schema 2).
+
+    H here has no multiplier terms for the path constraints. A constraint that involves a control turns the pointwise
+    minimisation of H into a constrained one whose solution depends on which constraints are active: u* is then not
+    derived. Pure state constraints leave u* = argmin H valid on arcs where none is active (the costates jump at the
+    junctions, which the indirect method here does not model), so u* is kept with that caveat.
+    """
+    controls = set(sym.controls)
+    mixed = [c.name for c, e in zip(sym.spec.path_constraints, sym.path) if e.free_symbols & controls]
+    if mixed:
+        return None, "none", (f"the path constraint(s) {', '.join(mixed)} involve the controls, so u* minimises H "
+                              "subject to them and depends on which are active; use a direct transcription")
+    if sym.path and u_star is not None:
+        names = ", ".join(c.name for c in sym.spec.path_constraints)
+        note += (f"; valid only on arcs where the state path constraint(s) {names} are inactive (the costates jump "
+                 "where one becomes active)")
+    return u_star, kind, note
 
 
 def _characterise(sym: SymbolicProblem, H, dH_du):

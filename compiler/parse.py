@@ -11,8 +11,9 @@ from typing import Any
 
 import yaml
 
+from . import parse_schema2
 from .errors import Location, SpecError
-from .schema import SCHEMA_VERSION, Expr, Named, Parameter, ProblemSpec, Variable
+from .schema import SUPPORTED_SCHEMAS, Expr, Named, Parameter, ProblemSpec, Variable
 
 __all__ = ["parse_spec", "parse_file"]
 
@@ -21,7 +22,7 @@ MAX_SPEC_BYTES = 1_000_000
 TOP_FIELDS = {
     "schema": True, "name": True, "title": True, "description": True, "source": False, "parameters": False,
     "definitions": False, "states": True, "controls": True, "dynamics": True, "cost": True, "horizon": True,
-    "reference": False,
+    "reference": False, "path_constraints": False,
 }
 PARAM_FIELDS = {"value": True, "description": False, "units": False, "learnable": False, "guess": False}
 STATE_FIELDS = {"initial": True, "final": False, "bounds": False, "description": False, "units": False}
@@ -68,6 +69,10 @@ class _Reader:
     def loc(self, node: yaml.Node, path: tuple[str, ...]) -> Location:
         return Location(self.file, node.start_mark.line + 1, node.start_mark.column + 1, path)
 
+    @staticmethod
+    def show(text: str, limit: int = 40) -> str:
+        return _show(text, limit)
+
     def error(self, message: str, loc: Location) -> SpecError:
         line = self.lines[loc.line - 1] if 0 < loc.line <= len(self.lines) else None
         return SpecError(message, loc, line)
@@ -102,6 +107,15 @@ class _Reader:
                 if required and f not in seen:
                     raise self.error(f"missing required field `{f}` in {what}; add `{f}: ...`", self.loc(node, path))
         return items
+
+    def bounds(self, node: yaml.Node, path: tuple[str, ...]) -> tuple[Expr, Expr, Location]:
+        """``bounds: [lower, upper]`` under ``path``: the two expressions and where the list is."""
+        loc = self.loc(node, path + ("bounds",))
+        if not isinstance(node, yaml.SequenceNode) or len(node.value) != 2:
+            got = _kind(node) if not isinstance(node, yaml.SequenceNode) else f"{len(node.value)} items"
+            raise self.error(f"`bounds` must be a list `[lower, upper]`, got {got}", loc)
+        return (self.expr(node.value[0], path + ("bounds", "lower")),
+                self.expr(node.value[1], path + ("bounds", "upper")), loc)
 
     def scalar(self, node: yaml.Node, path: tuple[str, ...]) -> Any:
         if not isinstance(node, yaml.ScalarNode):
@@ -211,10 +225,12 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
 
     schema_node = top["schema"][1]
     schema = r.scalar(schema_node, ("schema",))
-    if isinstance(schema, bool) or not isinstance(schema, int) or schema != SCHEMA_VERSION:
+    if isinstance(schema, bool) or not isinstance(schema, int) or schema not in SUPPORTED_SCHEMAS:
         got = f"text `{_show(schema)}`" if isinstance(schema, str) else f"`{_show(str(schema))}`"
-        raise r.error(f"unsupported schema {got}; this compiler reads `schema: {SCHEMA_VERSION}` (a number)",
+        versions = " or ".join(f"`schema: {v}`" for v in SUPPORTED_SCHEMAS)
+        raise r.error(f"unsupported schema {got}; this compiler reads {versions} (a number)",
                       r.loc(schema_node, ("schema",)))
+    parse_schema2.require_schema2(r, schema, top)
 
     name_node = top["name"][1]
     name = r.text(name_node, ("name",), "the system name")
@@ -267,7 +283,14 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
     running = r.expr(cost["running"], ("cost", "running"))
     terminal = r.expr(cost["terminal"], ("cost", "terminal")) if "terminal" in cost else None
 
-    horizon = r.expr(top["horizon"][1], ("horizon",))
+    free_horizon = None
+    if isinstance(top["horizon"][1], yaml.MappingNode):
+        free_horizon = parse_schema2.free_horizon(r, top["horizon"][1])
+        horizon = free_horizon.guess
+    else:
+        horizon = r.expr(top["horizon"][1], ("horizon",))
+    path_constraints = (parse_schema2.path_constraints(r, top["path_constraints"][1])
+                        if "path_constraints" in top else ())
 
     reference = []
     if "reference" in top:
@@ -290,6 +313,7 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
         source=source, parameters=tuple(parameters), definitions=tuple(definitions), states=tuple(states),
         controls=tuple(controls), dynamics=tuple(dynamics), dynamics_loc=r.loc(dyn_node, ("dynamics",)),
         sense=sense, running=running, terminal=terminal, horizon=horizon, reference=tuple(reference),
+        free_horizon=free_horizon, path_constraints=path_constraints,
     )
 
 
@@ -303,13 +327,7 @@ def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool
         f = {k: v for k, _, v in r.mapping(vn, path, fields, f"{kind} `{_show(key)}`")}
         lower = upper = bounds_loc = None
         if "bounds" in f:
-            b = f["bounds"]
-            bounds_loc = r.loc(b, path + ("bounds",))
-            if not isinstance(b, yaml.SequenceNode) or len(b.value) != 2:
-                got = _kind(b) if not isinstance(b, yaml.SequenceNode) else f"{len(b.value)} items"
-                raise r.error(f"`bounds` must be a list `[lower, upper]`, got {got}", bounds_loc)
-            lower = r.expr(b.value[0], path + ("bounds", "lower"))
-            upper = r.expr(b.value[1], path + ("bounds", "upper"))
+            lower, upper, bounds_loc = r.bounds(f["bounds"], path)
         out.append(Variable(
             name=key, loc=r.loc(kn, path), kind=kind,
             initial=r.expr(f["initial"], path + ("initial",)) if "initial" in f else None,

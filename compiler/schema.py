@@ -10,7 +10,10 @@ from typing import Any
 
 from .errors import Location
 
-SCHEMA_VERSION = 1
+# The newest schema this compiler reads; every version in SUPPORTED_SCHEMAS is read (schema 1 files stay valid and
+# compile to the same bytes as before schema 2 existed).
+SCHEMA_VERSION = 2
+SUPPORTED_SCHEMAS = (1, 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -71,6 +74,30 @@ class Named:
 
 
 @dataclasses.dataclass(frozen=True)
+class FreeHorizon:
+    """Schema 2: the final time as a decision variable, ``horizon: {free: true, guess: G, bounds: [lo, hi]}``."""
+
+    loc: Location
+    guess: Expr
+    lower: Expr
+    upper: Expr
+    bounds_loc: Location
+
+
+@dataclasses.dataclass(frozen=True)
+class PathConstraint:
+    """Schema 2: ``lower <= expression(x, u, t, p) <= upper`` along the whole trajectory."""
+
+    name: str
+    loc: Location
+    expr: Expr
+    lower: Expr
+    upper: Expr
+    bounds_loc: Location
+    description: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
 class ProblemSpec:
     """What the parse pass read: structure and types checked, expressions still text."""
 
@@ -92,8 +119,11 @@ class ProblemSpec:
     sense: str
     running: Expr
     terminal: Expr | None
-    horizon: Expr
+    horizon: Expr  # the fixed final time, or the guess of a free one
     reference: tuple[tuple[str, Any], ...]
+    # Schema 2 only; the defaults are what a schema 1 spec means.
+    free_horizon: FreeHorizon | None = None
+    path_constraints: tuple[PathConstraint, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,9 +146,18 @@ class SymbolicProblem:
     u_lower: tuple[float, ...]
     u_upper: tuple[float, ...]
     x_final: tuple[float | None, ...]
-    horizon: float
+    horizon: float  # the fixed final time, or the guess of a free one
     # Parameters that initial values, bounds, final values or the horizon were evaluated with, in spec order.
     structural_params: tuple[str, ...] = ()
+    # Schema 2: (lower, upper) of a free final time, else None; one expression and bound pair per path constraint.
+    horizon_bounds: tuple[float, float] | None = None
+    path: tuple[Any, ...] = ()
+    path_lower: tuple[float, ...] = ()
+    path_upper: tuple[float, ...] = ()
+
+    @property
+    def free_horizon(self) -> bool:
+        return self.horizon_bounds is not None
 
 
 @dataclasses.dataclass(frozen=True)

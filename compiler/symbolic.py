@@ -1,9 +1,10 @@
 """Pass 2, symbolic: the name-checked :class:`ProblemSpec` → :class:`SymbolicProblem` (sympy, the spec's own sense).
 
 Declared names become real sympy symbols (``t`` is :data:`TIME`); every expression is parsed by the whitelisted grammar
-of :mod:`.expressions` against the names it may use; definitions are inlined in order; and every constant field
-(parameter values, bounds, initial and final values, horizon, guesses) is evaluated to a float, recording which
-parameters the generated code will hold as numbers (``structural_params``).
+of :mod:`.expressions` against the names it may use (path constraints, schema 2, like the dynamics); definitions are
+inlined in order; and every constant field (parameter values, bounds, initial and final values, the horizon and a free
+horizon's bounds, guesses) is evaluated to a float, recording which parameters the generated code will hold as numbers
+(``structural_params``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import math
 
 import sympy
 
+from .errors import SpecError
 from .expressions import FUNCTIONS, ExpressionParser, wrap_floor, wrap_mod
 from .schema import Expr, ProblemSpec, SymbolicProblem
 
@@ -65,6 +67,7 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
     # The IR keeps the spec's own sense; lowering negates a payoff into minimisation form.
     running = expr_parser.parse(spec.running)
     terminal = expr_parser.parse(spec.terminal) if spec.terminal is not None else sympy.Integer(0)
+    path = tuple(_path_expression(expr_parser, c.expr) for c in spec.path_constraints)
 
     # Constant fields: numbers, pi, inf, parameters at nominal values, parameter-only definitions.
     constant_ns = dict(const_ns)
@@ -85,7 +88,12 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
     u_lower = tuple(const(c.lower, -math.inf, False) for c in spec.controls)
     u_upper = tuple(const(c.upper, math.inf, False) for c in spec.controls)
     x_final = tuple(None if s.final is None else _constant(cparser, s.final, finite=True) for s in spec.states)
-    horizon = _constant(cparser, spec.horizon, finite=True)
+    # A free horizon's guess and bounds may read as infinite here: the check pass refuses them with the reason.
+    free = spec.free_horizon
+    horizon = _constant(cparser, spec.horizon, finite=free is None)
+    horizon_bounds = None if free is None else (const(free.lower, math.nan, False), const(free.upper, math.nan, False))
+    path_lower = tuple(const(c.lower, -math.inf, False) for c in spec.path_constraints)
+    path_upper = tuple(const(c.upper, math.inf, False) for c in spec.path_constraints)
     # The parameters these constants were evaluated with (directly or through a definition): the generated code
     # holds the numbers, so a new value of such a parameter at run time could not move them.
     used = set(cparser.used)
@@ -99,8 +107,21 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
         spec=spec, states=states, controls=controls, params=params, time=TIME, dynamics=dynamics,
         running=running, terminal=terminal, param_values=tuple(param_values), guesses=guesses, x0=x0,
         x_lower=x_lower, x_upper=x_upper, u_lower=u_lower, u_upper=u_upper, x_final=x_final, horizon=horizon,
-        structural_params=structural,
+        structural_params=structural, horizon_bounds=horizon_bounds, path=path, path_lower=path_lower,
+        path_upper=path_upper,
     )
+
+
+def _path_expression(parser: ExpressionParser, e: Expr):
+    """A path constraint's expression; writing the inequality itself is the usual slip, so say how to write it."""
+    try:
+        return parser.parse(e)
+    except SpecError as exc:
+        if "comparison" not in exc.message:
+            raise
+        hint = ("a path constraint is an expression with its limits in `bounds:`, e.g. `expression: x + u` and "
+                "`bounds: [-.inf, 2]` for x + u <= 2")
+        raise SpecError(f"{exc.message}; {hint}", exc.loc, exc.source_line) from None
 
 
 class _ConstantParser(ExpressionParser):

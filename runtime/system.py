@@ -5,6 +5,21 @@ attributes are the spec's static metadata and whose static methods are the compi
 no state, so a system is hashable and can be a static argument of ``jax.jit``; parameters travel separately as a
 ``dict[str, Array]`` pytree (see :meth:`System.default_params`), which is what makes them differentiable.
 
+Schema 2 (path constraints, a free final time): the class attributes and methods for them have defaults here that
+mean "none" (a fixed horizon, no path constraints), so schema 1 modules need not, and do not, mention them.
+
+Free final time (``free_horizon``): ``horizon`` holds the spec's *guess* of T, so code that reads it keeps working, but
+T is a decision variable in ``[*horizon_bounds]``. A transcription maps physical time to ``t = T * tau`` with
+``tau`` in [0, 1] (so ``x' = T f(x, u, T tau)`` on the fixed grid in tau) and treats T as one more variable; every
+generated function still takes *physical* t, and ``terminal_cost(x, t, p)`` is called with t = T (a cost that uses
+``t`` in its terminal term depends on the final time, e.g. ``terminal: t`` for a minimum-time problem).
+
+Path constraints: ``path_lower <= path_constraints(x, u, t, p) <= path_upper`` at every time, elementwise; a
+transcription enforces them at every node (and at collocation midpoints). Lower -inf or upper +inf means one-sided;
+``path_lower[i] == path_upper[i]`` is an equality constraint. The Jacobians are generated like the dynamics'.
+
+Until a method enforces these, :meth:`System.require_schema1_features` refuses such a system with a clear error.
+
 Sign convention: every cost function and every derived artefact (Hamiltonian, costates, u*) is in *minimisation
 form*. A spec written with ``sense: maximize`` has its running and terminal payoff negated by the compiler; the
 objective the runtime minimises, and reports, is ``J = phi(x(T)) + int L dt`` in that form.
@@ -18,11 +33,16 @@ from typing import Any, ClassVar, Mapping
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["System", "OptimalControlUnavailable"]
+__all__ = ["System", "OptimalControlUnavailable", "UnsupportedFeature"]
 
 
 class OptimalControlUnavailable(NotImplementedError):
     """Raised by :meth:`System.optimal_control` when the compiler could not characterise u*."""
+
+
+class UnsupportedFeature(NotImplementedError):
+    """Raised by :meth:`System.require_schema1_features`: a method that would silently ignore a spec's path
+    constraints or free final time."""
 
 
 class System:
@@ -30,7 +50,9 @@ class System:
 
     minimise   phi(x(T), T) + int_0^T L(x, u, t) dt
     subject to x' = f(x, u, t, p),  x(0) = x0,  x_lower <= x <= x_upper,  u_lower <= u <= u_upper,
-               x_i(T) = final_i for every state with a required final value.
+               x_i(T) = final_i for every state with a required final value,
+               path_lower <= g(x, u, t, p) <= path_upper for all t (schema 2),
+    with T = horizon, or T free in horizon_bounds (schema 2, ``free_horizon``).
     """
 
     # Static metadata: generated subclasses set all of these.
@@ -71,6 +93,18 @@ class System:
     # Published and target figures (minimisation form); may be empty.
     reference: ClassVar[Mapping[str, Any]]
 
+    # Schema 2. A free final time: T is a decision variable in horizon_bounds, and `horizon` is its guess.
+    free_horizon: ClassVar[bool] = False
+    horizon_bounds: ClassVar[tuple[float, float] | None] = None
+    horizon_guess: ClassVar[float | None] = None  # == horizon when free_horizon, else None
+    # Path constraints path_lower <= path_constraints(x, u, t, p) <= path_upper, one entry per constraint;
+    # kinds: "state" (no control in it), "control" (no state) or "mixed".
+    path_constraint_names: ClassVar[tuple[str, ...]] = ()
+    path_constraint_descriptions: ClassVar[tuple[str, ...]] = ()
+    path_constraint_kinds: ClassVar[tuple[str, ...]] = ()
+    path_lower: ClassVar[tuple[float, ...]] = ()
+    path_upper: ClassVar[tuple[float, ...]] = ()
+
     # ---- identity: stateless, so equal iff same class (lets a system be a static jit argument) -------------
     def __eq__(self, other: object) -> bool:
         return type(self) is type(other)
@@ -79,7 +113,9 @@ class System:
         return hash((type(self).__module__, type(self).__qualname__, self.spec_sha256))
 
     def __repr__(self) -> str:
-        return f"<myriad system {self.name!r}: {self.n_states} states, {self.n_controls} controls, T={self.horizon}>"
+        T = f"T free in {list(self.horizon_bounds)}" if self.free_horizon else f"T={self.horizon}"
+        path = f", {self.n_path} path constraints" if self.n_path else ""
+        return f"<myriad system {self.name!r}: {self.n_states} states, {self.n_controls} controls{path}, {T}>"
 
     # ---- sizes and arrays -----------------------------------------------------------------------------------
     @property
@@ -89,6 +125,31 @@ class System:
     @property
     def n_controls(self) -> int:
         return len(self.control_names)
+
+    @property
+    def n_path(self) -> int:
+        """The number of path constraints (0 for schema 1 systems)."""
+        return len(self.path_constraint_names)
+
+    def require_schema1_features(self, method: str) -> None:
+        """Refuse a system whose path constraints or free final time ``method`` would silently ignore.
+
+        Args:
+            method: what is about to solve, for the message (e.g. ``"multiple_shooting + ipopt"``).
+
+        Raises:
+            UnsupportedFeature: the system has path constraints or a free final time.
+        """
+        missing = []
+        if self.n_path:
+            missing.append(f"path constraints ({', '.join(self.path_constraint_names)})")
+        if self.free_horizon:
+            lo, hi = self.horizon_bounds
+            missing.append(f"a free final time (T in [{lo:g}, {hi:g}])")
+        if missing:
+            raise UnsupportedFeature(
+                f"system {self.name!r} has {' and '.join(missing)}, which {method} does not enforce yet; solving "
+                "would ignore them and return the solution of another problem as if it were this one's")
 
     @property
     def final_mask(self) -> np.ndarray:
@@ -180,6 +241,22 @@ class System:
     def terminal_costate(x, t, params):  # pragma: no cover
         """lam(T) = dphi/dx(x(T)): the transversality condition for free final states."""
         raise NotImplementedError
+
+    # ---- path constraints (schema 2): generated where a spec has any; these defaults mean "none" --------------
+    @staticmethod
+    def path_constraints(x, u, t, params):
+        """g(x, u, t, p), shape (n_path,): here (0,), a system without path constraints."""
+        return jnp.zeros((0,), dtype=jnp.result_type(x))
+
+    @staticmethod
+    def path_constraints_jac_x(x, u, t, params):
+        """dg/dx, shape (n_path, n_states): here (0, n_states)."""
+        return jnp.zeros((0, jnp.shape(x)[-1]), dtype=jnp.result_type(x))
+
+    @staticmethod
+    def path_constraints_jac_u(x, u, t, params):
+        """dg/du, shape (n_path, n_controls): here (0, n_controls)."""
+        return jnp.zeros((0, jnp.shape(u)[-1]), dtype=jnp.result_type(x))
 
     @staticmethod
     def optimal_control(x, lam, t, params):  # pragma: no cover

@@ -53,6 +53,7 @@ def _check_output(capsys, argv) -> tuple[int, str]:
 def test_corpus_size():
     assert len(BAD) >= 40
     assert len(HOSTILE) >= 5
+    assert any("path_constraints" in p.read_text(encoding="utf-8") for p in HOSTILE)  # schema 2 text too
 
 
 def test_every_corpus_file_has_an_expectation():
@@ -204,6 +205,9 @@ def test_hostile_text_stays_text(path, tmp_path, monkeypatch, capsys):
     assert system.control_descriptions == tuple(c.get("description", "") for c in controls)
     assert system.control_units == tuple(c.get("units", "") for c in controls)
     assert system.param_descriptions == tuple(p.get("description", "") for p in doc["parameters"].values())
+    paths = doc.get("path_constraints", {})
+    assert system.path_constraint_names == tuple(paths)
+    assert system.path_constraint_descriptions == tuple(c.get("description", "") for c in paths.values())
     if "note" in doc.get("reference", {}):
         assert system.reference["note"] == doc["reference"]["note"]
     assert not (tmp_path / MARKER).exists()

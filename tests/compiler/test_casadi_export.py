@@ -151,3 +151,59 @@ def test_importing_the_export_loads_neither_casadi_nor_jax():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
     mods = set(out.stdout.split())
     assert "casadi" not in mods and "jax" not in mods
+
+
+# -- schema 2: path constraints and a free final time, exported and posed with casadi.Opti -------------------------
+
+SCHEMA2 = ROOT / "tests" / "compiler" / "schema2"
+
+
+def test_path_constraints_match_generated_jax(tmp_path, monkeypatch):
+    monkeypatch.setenv("MYRIAD_CACHE", str(tmp_path / "cache"))
+    path = SCHEMA2 / "keep_out_zone.yaml"
+    cs, system = export_file(path), load(path)
+    assert cs.path_names == system.path_constraint_names == ("keep_out", "power")
+    assert (cs.path_lower, cs.path_upper) == (system.path_lower, system.path_upper) == ((0.25, -2.0), (math.inf, 2.0))
+    assert cs.free_horizon and cs.horizon_bounds == system.horizon_bounds == (1.0, 20.0) and cs.horizon == 4.0
+    xs, us, ts, ps = _points(cs, 5)
+    for x, u, t, p in zip(xs, us, ts, ps):
+        params = {k: jnp.asarray(v) for k, v in zip(cs.param_names, p)}
+        want = np.asarray(system.path_constraints(jnp.asarray(x), jnp.asarray(u), jnp.asarray(t), params))
+        np.testing.assert_allclose(np.asarray(cs.g(x, u, t, p)).ravel(), want, rtol=RTOL)
+    plain = to_casadi(check_file(ROOT / "specs" / "van_der_pol.yaml"))  # schema 1: no path constraints, T fixed
+    assert plain.g([0, 1], [0], 0, plain.p0).shape == (0, 1) and not plain.free_horizon and plain.n_path == 0
+
+
+def test_opti_minimum_time_converges_to_the_analytic_final_time():
+    """Bang-bang double integrator, T* = 2: the trapezoidal optimum's T falls as 1/N^2 towards 2."""
+    from myriad.compiler.casadi_opti import trapezoidal
+
+    cs = export_file(SCHEMA2 / "min_time_double_integrator.yaml")
+    Ts = []
+    for N in (20, 40):
+        problem = trapezoidal(cs, N)
+        sol = problem.opti.solve()
+        assert sol.stats()["success"]
+        Ts.append(float(sol.value(problem.T)))
+        assert float(sol.value(problem.J)) == pytest.approx(Ts[-1], rel=1e-9)  # running cost 1: J = T
+    order = math.log2((Ts[0] - 2) / (Ts[1] - 2))
+    assert 1.9 < order < 2.1, Ts
+    assert abs((4 * Ts[1] - Ts[0]) / 3 - 2) < 1e-5, Ts  # Richardson extrapolation
+
+
+def test_opti_state_path_constraint_meets_bryson_denham():
+    """x <= l = 1/9 at every node; J* = 4 / (9 l) = 4, approached at second order."""
+    from myriad.compiler.casadi_opti import trapezoidal
+
+    cs = export_file(SCHEMA2 / "bryson_denham.yaml")
+    Js = []
+    for N in (40, 80):
+        problem = trapezoidal(cs, N)
+        sol = problem.opti.solve()
+        assert sol.stats()["success"]
+        Js.append(float(sol.value(problem.J)))
+        wall = np.asarray(sol.value(problem.G)).ravel()
+        assert wall.shape == (N + 1,) and wall.max() <= 1 / 9 + 1e-7
+        assert wall.max() > 1 / 9 - 1e-7  # active: without the wall the optimum (J = 2) reaches x = 1/4
+    assert 1.9 < math.log2((Js[0] - 4) / (Js[1] - 4)) < 2.1, Js
+    assert abs((4 * Js[1] - Js[0]) / 3 - 4) < 1e-4, Js

@@ -40,6 +40,13 @@ cost:
 horizon: 1
 """
 DYNAMICS_LINE = VALID.splitlines().index("  x: EXPR") + 1
+# Schema 2: a free final time and path constraints, the fuzzed expression in a path constraint.
+VALID2 = VALID.replace("schema: 1", "schema: 2").replace("  x: EXPR", "  x: -d + u").replace(
+    "horizon: 1\n", "horizon: {free: true, guess: 2, bounds: [0.5, 10]}\n"
+    "path_constraints:\n"
+    "  cap: {expression: PATH, bounds: [-.inf, 2], description: a cap}\n"
+    "  band: {expression: x*u, bounds: [-1, 1]}\n")
+PATH_LINE = VALID2.splitlines().index("  cap: {expression: PATH, bounds: [-.inf, 2], description: a cap}") + 1
 ONE_LINE = re.compile(r"fuzz\.yaml:(\d+):(\d+): error: \S.*\Z", re.S)
 
 
@@ -72,6 +79,9 @@ YAMLISH = [
     "!!binary ", "!", "? ", "|\n", ">\n", "---\n", "...\n", "%YAML 1.1\n", "#", "'", '"', "\\", "\t", "  ", "\n",
     "\r\n", "\x00", "\x07", "\ufeff", "\ud800", "\u2028", "1e999", ".inf", "-.inf", ".nan", "null", "~", "yes", "no",
     "2024-13-45", "0x1F", "1:30", "1" * 400, "9**9**9", "__import__('os')", "x.__class__", "lambda: 1", "x[0]",
+    "schema: 2\n", "horizon: {free: true, guess: 2, bounds: [0.5, 10]}\n", "path_constraints:\n",
+    "  c: {expression: x + u, bounds: [-.inf, 2]}\n", "free: false", "guess: .nan", "bounds: [.inf, -.inf]",
+    "expression: ", "{free: true}", "[0, 1]",
 ]
 yamlish_text = st.lists(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=8)), max_size=40).map("".join)
 
@@ -87,6 +97,18 @@ def test_arbitrary_text_raises_only_spec_errors(text):
 def test_mutated_valid_spec_raises_only_spec_errors(data):
     """Insert, replace or delete a fragment anywhere in a valid spec: reaches deeper than random text does."""
     base = VALID.replace("EXPR", "-d + u")
+    start = data.draw(st.integers(0, len(base)))
+    end = data.draw(st.integers(start, min(len(base), start + 12)))
+    fragment = data.draw(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=6)))
+    _compile(base[:start] + fragment + base[end:])
+
+
+@fuzz(200)
+@given(st.data())
+def test_mutated_schema2_spec_raises_only_spec_errors(data):
+    """The same for the schema 2 fields: a free final time and path constraints."""
+    base = VALID2.replace("PATH", "x + u")
+    assert _compile(base) is None
     start = data.draw(st.integers(0, len(base)))
     end = data.draw(st.integers(start, min(len(base), start + 12)))
     fragment = data.draw(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=6)))
@@ -154,6 +176,16 @@ def test_grammar_expressions_compile_or_raise_spec_error(expr, style):
     if error is not None and style == "double":
         # Only the dynamics changed, and a quoted scalar stays on its line: the error must point there.
         assert error.loc.line == DYNAMICS_LINE, error.one_line()
+
+
+@fuzz(200)
+@given(expressions, st.sampled_from(["plain", "single", "double"]))
+def test_grammar_path_constraints_compile_or_raise_spec_error(expr, style):
+    # A flow mapping ends a plain scalar at `,` or `}`, so only quoted expressions are known to stay in the field.
+    text = VALID2.replace("PATH", _yaml_scalar(expr, style))
+    error = _compile(text)
+    if error is not None and style == "double":
+        assert error.loc.line == PATH_LINE, error.one_line()
 
 
 @fuzz(200)
