@@ -52,9 +52,17 @@ def _parser():
                         "default: each method's own")
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
-    s.add_argument("--error-tolerance", type=float, default=1e-6, metavar="TOL",
+    s.add_argument("--error-tolerance", type=float, default=None, metavar="TOL",
                    help="warn (on stderr) when the error estimate, the relative local error of the dynamics on the "
-                        "method's grid, exceeds TOL (default 1e-6)")
+                        "method's grid, exceeds TOL (default: --tolerance when refining, else 1e-6)")
+    s.add_argument("--tolerance", type=float, default=None, metavar="TOL",
+                   help="mesh refinement: solve again on non-uniform grids, splitting the intervals whose error "
+                        "estimate exceeds TOL, until it meets TOL (exit 1 if a limit stops it first); "
+                        "direct transcriptions only, starting from --intervals")
+    s.add_argument("--max-refinements", type=int, default=None, metavar="K",
+                   help="with --tolerance: the most refined grids after the first solve (default 10)")
+    s.add_argument("--max-intervals", type=int, default=None, metavar="N",
+                   help="with --tolerance: the largest grid refinement may build (default 2000)")
     from .sysid.cli import add_parser as add_sysid
 
     add_sysid(sub)
@@ -170,23 +178,29 @@ def _cmd_solve(args) -> int:
     except SystemExit as usage:  # checked before the system is even loaded
         return int(usage.code)
     error = _first_error(
-        None if args.error_tolerance > 0 else f"--error-tolerance must be positive, got {args.error_tolerance}",
+        _refinement_error(args, method),
+        None if args.error_tolerance is None or args.error_tolerance > 0
+        else f"--error-tolerance must be positive, got {args.error_tolerance}",
         _output_file_error(args.json, "--json"), _output_file_error(args.plot, "--plot"),
         _plot_format_error(args.plot, "--plot"))
     if error:
         return _usage(error)
+    warn_above = args.error_tolerance or args.tolerance or 1e-6
     system = load(args.system)
-    sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None)
+    sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None, tolerance=args.tolerance,
+                max_refinements=args.max_refinements, max_intervals=args.max_intervals)
     state = "converged" if sol.converged else "NOT CONVERGED"
     print(f"{system.name}: {sol.transcription} + {sol.solver} ({sol.integrator}): {state} after {sol.iterations} "
           f"iterations ({sol.message})")
-    print(f"  status {sol.status} (solver code {sol.solver_code}); grid {sol.controls.shape[0] - 1} control intervals")
+    grid = "" if sol.intervals is None else f"; grid {sol.intervals} control intervals"
+    print(f"  status {sol.status} (solver code {sol.solver_code}){grid}")
     print(f"  cost {sol.cost:.8g}   defect {[f'{d:.2e}' for d in sol.defect] or 'none required'}   "
           f"constraint violation {sol.constraint_violation:.2e}")
     print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
           f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
-    _report_error_estimate(sol, args.error_tolerance)
-    print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s")
+    _report_error_estimate(sol, warn_above)
+    _report_refinement(sol)
+    print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s (last grid)")
     if args.json:
         rec = sol.record()
         rec.update(times=sol.times.tolist(), states=sol.states.tolist(), controls=sol.controls.tolist())
@@ -197,7 +211,42 @@ def _cmd_solve(args) -> int:
 
         plot_solution(sol, args.plot, system)
         print(f"  plot: {args.plot}")
-    return 0 if sol.converged else 1
+    return 0 if sol.accurate else 1
+
+
+def _refinement_error(args, method):
+    """Why the refinement options cannot apply (None if they can): checked before the system is loaded."""
+    if args.tolerance is None:
+        given = [f for f, v in (("--max-refinements", args.max_refinements), ("--max-intervals", args.max_intervals))
+                 if v is not None]
+        if given:
+            verb = "is" if len(given) == 1 else "are"
+            return f"{' and '.join(given)} {verb} only for mesh refinement: add --tolerance"
+        return None
+    if not method.uses_solver:
+        return f"--tolerance refines the grid of a direct transcription; {args.transcription} has none"
+    from .transcriptions.refine import MeshRefinement
+
+    options = {k: v for k, v in (("max_refinements", args.max_refinements), ("max_intervals", args.max_intervals))
+               if v is not None}
+    try:
+        MeshRefinement(args.tolerance, **options)
+    except ValueError as exc:
+        return f"--{str(exc).replace('_', '-')}"
+    return None
+
+
+def _report_refinement(sol):
+    if sol.refinement is None:
+        return
+    r = sol.refinement
+    levels = "  ".join(f"{h['intervals']}: {h['error']:.1e}" for h in r["history"])
+    print(f"  mesh refinement ({len(r['history'])} grids, intervals: error): {levels}")
+    if r["met"]:
+        print(f"  refinement met the tolerance {r['tolerance']:.3g}: {r['reason']}")
+    else:
+        print(f"myriad: warning: mesh refinement stopped before meeting the tolerance {r['tolerance']:.3g}: "
+              f"{r['reason']}", file=sys.stderr)
 
 
 def _report_error_estimate(sol, tolerance):
@@ -205,7 +254,7 @@ def _report_error_estimate(sol, tolerance):
 
     import numpy as np
 
-    if not math.isfinite(sol.error_estimate):
+    if math.isnan(sol.error_estimate):
         why = "not computed by this method" if sol.interval_errors is None else "the trajectory is not finite"
         print(f"  error estimate: none ({why})")
         return
@@ -218,7 +267,8 @@ def _report_error_estimate(sol, tolerance):
         t = sol.times[worst * (sol.times.size - 1) // sol.interval_errors.size]
         print(f"myriad: warning: error estimate {sol.error_estimate:.2e} exceeds the tolerance {tolerance:.3g} "
               f"on {over} of {sol.interval_errors.size} intervals (largest from t = {t:.4g}): the grid is too "
-              f"coarse for the dynamics; use more --intervals or a higher-order method", file=sys.stderr)
+              f"coarse for the dynamics; use more --intervals, a higher-order method, or --tolerance to refine the "
+              f"mesh", file=sys.stderr)
 
 
 def _cmd_sysid(args) -> int:

@@ -9,8 +9,11 @@ in the true dynamics with the adaptive integrator.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .data import ProblemData
@@ -44,6 +47,14 @@ class Solution:
         error_estimate: the relative local error of the dynamics, max over the grid's intervals and the states
             (:mod:`~myriad.runtime.transcriptions.error`); NaN where not computed (the indirect sweep).
         interval_errors: (N,) that error on each interval of the method's grid (max over states), or None.
+        intervals: the size of the final control grid, N intervals (uniform or not; for multiple shooting all
+            M S integrator steps); None where the method has no such grid (the indirect sweep).
+        refinement: None for a single solve; after mesh refinement (``solve(..., tolerance=...)``,
+            :mod:`~myriad.runtime.transcriptions.refine`) a dict: ``met`` (the error estimate reached the
+            tolerance), ``tolerance``, ``reason`` (why refinement stopped), ``history`` (one dict per solve:
+            intervals, error, cost, converged, seconds). ``converged`` stays the NLP's own verdict on the last grid:
+            a converged NLP whose grid missed the tolerance has ``converged`` True and ``met`` False, and
+            :attr:`accurate` False.
     """
 
     system: str
@@ -68,10 +79,17 @@ class Solution:
     solver_code: int = 0
     error_estimate: float = math.nan
     interval_errors: np.ndarray | None = None
+    intervals: int | None = None
+    refinement: dict | None = None
 
     @property
     def max_defect(self) -> float:
         return max((abs(d) for d in self.defect), default=0.0)
+
+    @property
+    def accurate(self) -> bool:
+        """Converged, and where mesh refinement ran, its error estimate met the tolerance."""
+        return bool(self.converged) and (self.refinement is None or bool(self.refinement["met"]))
 
     def record(self) -> dict:
         """A JSON-ready dict (no arrays), one record of the bench's JSON."""
@@ -86,8 +104,16 @@ class Solution:
             "simulated_defect": [json_number(d) for d in self.simulated_defect],
             "simulated_bound_violation": json_number(self.simulated_bound_violation),
             "error_estimate": json_number(self.error_estimate),
+            "intervals": self.intervals,
+            "refinement": None if self.refinement is None else _refinement_record(self.refinement),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }
+
+
+def _refinement_record(refinement: dict) -> dict:
+    history = [{k: json_number(v) if isinstance(v, float) else v for k, v in level.items()}
+               for level in refinement["history"]]
+    return {**refinement, "tolerance": json_number(refinement["tolerance"]), "history": history}
 
 
 def json_number(v) -> float | None:
@@ -97,19 +123,37 @@ def json_number(v) -> float | None:
 
 
 def resimulate(system: System, times, controls, data: ProblemData) -> tuple[float, list[float], float]:
-    """Cost, defect and relative state-bound violation of the controls (linearly interpolated), adaptive integrator."""
-    times = np.asarray(times)
-    controls = np.asarray(controls)
+    """Cost, defect and relative state-bound violation of the controls (linearly interpolated), adaptive integrator.
+
+    On a uniform grid this is :func:`~myriad.runtime.simulate.simulate`; on any other (a transcription's ``grid``,
+    a refined mesh) the adaptive integrator restarts at every given time, so the control it sees is exactly the
+    piecewise-linear one through the given points, however uneven.
+    """
+    times = np.asarray(times, dtype=np.float64)
+    controls = np.asarray(controls, dtype=np.float64)
     grid = np.linspace(0.0, system.horizon, times.shape[0])
-    if not np.allclose(times, grid, rtol=0, atol=1e-9 * max(1.0, system.horizon)):
-        grid = np.linspace(0.0, system.horizon, 4 * times.shape[0])
-        controls = np.stack([np.interp(grid, times, controls[:, j]) for j in range(controls.shape[1])], 1)
-    sim = simulate(system, controls, data.params, data.x0, integrator=Adaptive())
+    if np.allclose(times, grid, rtol=0, atol=1e-9 * max(1.0, system.horizon)):
+        sim = simulate(system, controls, data.params, data.x0, integrator=Adaptive())
+        cost, xs = float(sim.cost), np.asarray(sim.states)
+    else:
+        cost, xs = _simulate_on(system, jnp.asarray(times), jnp.asarray(controls), data.params, jnp.asarray(data.x0))
+        cost, xs = float(cost), np.asarray(xs)
     mask = system.final_mask
     a = system.arrays()
-    xs = np.asarray(sim.states)
     with np.errstate(invalid="ignore"):
         over = np.maximum(np.maximum(a["x_lower"] - xs, xs - a["x_upper"]), 0.0)
         size = np.maximum(1.0, np.where(np.isfinite(a["x_upper"]), np.abs(a["x_upper"]), np.abs(a["x_lower"])))
     over = np.where(np.isnan(over), np.inf, over) / np.where(np.isfinite(size), size, 1.0)
-    return float(sim.cost), [float(d) for d in np.asarray(sim.defect)[mask]], float(over.max(initial=0.0))
+    defect = (xs[-1] - np.asarray(system.final_values))[mask]
+    return cost, [float(d) for d in defect], float(over.max(initial=0.0))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _simulate_on(system: System, times, controls, params, x0):
+    # Imported here: transcriptions/ imports this module (a module-level import would be circular).
+    from .transcriptions.grid import rollout_with_cost_on
+
+    states, running = rollout_with_cost_on(
+        Adaptive(), lambda x, u, t: system.dynamics(x, u, t, params),
+        lambda x, u, t: system.running_cost(x, u, t, params), x0, times, controls)
+    return running[-1] + system.terminal_cost(states[-1], times[-1], params), states

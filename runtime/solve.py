@@ -1,6 +1,7 @@
 """The single entry point: ``solve(system, method, solver)`` and its batched twin.
 
     solve(system, MultipleShooting(intervals=20), Ipopt(tol=1e-8))
+    solve(system, HermiteSimpson(intervals=20), tolerance=1e-6)     # mesh refinement until the error estimate <= 1e-6
 
 Both only call the method interface (:class:`~myriad.runtime.method.AbstractMethod`): a direct transcription hands
 its NLP to the solver, an indirect method (the sweep) solves on its own and refuses a solver.
@@ -17,8 +18,9 @@ from .method import AbstractMethod
 from .solution import Solution
 from .solution import resimulate as _resimulate  # solve() has a keyword argument `resimulate`
 from .system import System
-from .transcriptions import SingleShooting
-from .transcriptions.base import transcribe
+from .transcriptions import TRANSCRIPTIONS, SingleShooting
+from .transcriptions.base import AbstractTranscription, transcribe
+from .transcriptions.refine import MeshRefinement, solve_refined
 
 __all__ = ["Solution", "solve", "solve_batch", "transcribe", "label"]
 
@@ -44,8 +46,11 @@ def solve(
     x0: Any = None,
     z0: Any = None,
     resimulate: bool = True,
+    tolerance: float | None = None,
+    max_refinements: int | None = None,
+    max_intervals: int | None = None,
 ) -> Solution:
-    """Solve one optimal-control problem.
+    """Solve one optimal-control problem, once or with mesh refinement.
 
     Args:
         system: a system object or a name/path for :func:`myriad.runtime.load`.
@@ -57,19 +62,49 @@ def solve(
         x0: the initial state (default: the spec's).
         z0: a starting point for the method (default: its own guess).
         resimulate: also evaluate the controls with the adaptive integrator.
+        tolerance: refine the mesh (:mod:`~myriad.runtime.transcriptions.refine`): solve again on non-uniform grids,
+            splitting the intervals whose error estimate exceeds ``tolerance``, until the estimate meets it or a limit
+            is reached (direct transcriptions only). None: one solve on the transcription's own grid.
+        max_refinements: the most refined grids after the first solve (default 10); needs ``tolerance``.
+        max_intervals: the largest grid refinement may build (default 2000); needs ``tolerance``.
 
     Returns:
-        A :class:`Solution`; check ``converged`` (a failed solve is returned, never reported as a success).
+        A :class:`Solution`; check ``converged`` (a failed solve is returned, never reported as a success) and,
+        after refinement, ``refinement["met"]`` (or ``accurate`` for both).
+
+    Raises:
+        ValueError: refinement options without ``tolerance``, invalid ones, or ``tolerance`` for an indirect
+            method; raised before any work.
     """
+    refine = _refinement(tolerance, max_refinements, max_intervals)
     system = load(system) if isinstance(system, str) else system
     method = _method(transcription)
+    if refine is not None and not isinstance(method, AbstractTranscription):
+        raise ValueError(f"tolerance: mesh refinement needs a direct transcription ({', '.join(TRANSCRIPTIONS)}); "
+                         f"{method.label} has no grid to refine")
     data = default_data(system, params, x0)
-    sol = method.solve_problem(system, solver, data, z0)
+    if refine is None:
+        sol = method.solve_problem(system, solver, data, z0)
+    else:
+        sol = solve_refined(system, method, solver, data, refine, z0)
     if resimulate:
         cost, defect, violation = _resimulate(system, sol.times, sol.controls, data)
         sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect,
                                   simulated_bound_violation=violation)
     return sol
+
+
+def _refinement(tolerance, max_refinements, max_intervals) -> MeshRefinement | None:
+    if tolerance is None:
+        given = [name for name, v in (("max_refinements", max_refinements), ("max_intervals", max_intervals))
+                 if v is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)} {'is' if len(given) == 1 else 'are'} only for mesh refinement: "
+                             f"pass tolerance= as well")
+        return None
+    options = {k: v for k, v in (("max_refinements", max_refinements), ("max_intervals", max_intervals))
+               if v is not None}
+    return MeshRefinement(tolerance, **options)
 
 
 def solve_batch(

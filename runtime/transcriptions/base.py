@@ -5,7 +5,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import functools
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -46,9 +46,39 @@ class AbstractTranscription(AbstractMethod):
     - The functions are pure and not jitted: the solver jits them with ``data`` as a traced argument, so new
       parameters or a new x0 reuse the compiled code, and a batch of ``data`` is one ``jax.vmap``.
     - ``unravel(z, data)`` returns ``(times, states, controls)`` on the transcription's own grid, x(0) included.
+    - Every transcription has a ``grid`` field: None for the uniform grid, or a tuple of normalised node positions
+      (``grid.py``); ``on_grid`` accepts an interval count or such positions, ``with_grid`` re-grids an instance
+      (mesh refinement, ``refine.py``).
 
     Concrete transcriptions are frozen, hashable dataclasses (static ``jax.jit`` arguments).
+
+    Class attributes (besides ``label`` and ``quadrature``):
+        order: the global order p of the discretisation (its local error on an interval is O(h^{p+1})): the
+            integrator's for shooting, 2 for trapezoidal, 4 for Hermite-Simpson.
+        steps_per_mesh_interval: how many grid intervals refinement treats as one (multiple shooting: the S steps
+            of a shooting interval; 1 elsewhere).
     """
+
+    order: ClassVar[int]
+    steps_per_mesh_interval: ClassVar[int] = 1
+
+    @property
+    @abc.abstractmethod
+    def grid_intervals(self) -> int:
+        """N, the number of intervals of the control grid (the size ``on_grid(N)`` takes)."""
+
+    @abc.abstractmethod
+    def with_grid(self, grid: tuple[float, ...]) -> "AbstractTranscription":
+        """This transcription, every other option kept, on the grid of normalised node positions ``grid``.
+
+        Raises:
+            ValueError: a grid this transcription cannot have (see ``__post_init__``).
+        """
+
+    def positions(self) -> np.ndarray:
+        """The normalised node positions of the control grid, (N + 1,): the ``grid``, or the uniform one."""
+        grid = getattr(self, "grid")
+        return np.linspace(0.0, 1.0, self.grid_intervals + 1) if grid is None else np.asarray(grid)
 
     @abc.abstractmethod
     def transcribe(self, system: System) -> NLP:
@@ -122,4 +152,5 @@ def _solution(system: System, transcription: AbstractTranscription, solver, nlp:
         status=res.status, solver_code=int(res.solver_code), message=res.message, iterations=int(res.iterations),
         constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
         solve_seconds=float(res.solve_seconds), error_estimate=error.value, interval_errors=error.intervals,
+        intervals=transcription.grid_intervals,
     )

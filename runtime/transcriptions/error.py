@@ -20,7 +20,10 @@ kink at the midpoint would add an O(h^3) control-interpolation term and hide the
 The accurate integration is classical RK4 with 16 substeps per interval: its error is 16^4 = 65536 times below one
 RK4 step of the same size, so it never limits the estimate of a method of order at most 4. It is explicit: on a
 problem stiff enough that h/16 lies outside RK4's stability region it overestimates (a false warning, never a false
-pass). Multiple shooting's node variables are the end states of their intervals, so an unconverged continuity
+pass), and where it diverges outright the interval's error is +inf (a step far too long for the dynamics: refinement
+splits it first); NaN is kept for a trajectory that is itself not finite. The intervals need not be equal: each is
+integrated over its own [t_k, t_{k+1}], so a non-uniform grid (a transcription's ``grid``) is measured the same way.
+Multiple shooting's node variables are the end states of their intervals, so an unconverged continuity
 defect shows up here too.
 
 References:
@@ -50,7 +53,8 @@ class ErrorEstimate:
     """The relative local error of a trajectory.
 
     Attributes:
-        value: max over intervals and states (NaN where the trajectory is not finite).
+        value: max over intervals and states: +inf where the reference integration diverged on an interval, NaN
+            where the trajectory is not finite.
         intervals: (N,) the max over states on each interval of the method's grid.
         interval_times: (N + 1,) the interval boundaries.
     """
@@ -91,7 +95,9 @@ def _errors_fn(system: System, substeps: int):
     def errors(params, t0, h, x0, x1, u0, um, u1):
         f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
         ref = jax.vmap(lambda *a: _reference_end(f, *a, substeps))(x0, t0, h, u0, um, u1)
-        return jnp.max(jnp.abs(x1 - ref) / scale, axis=1)
+        finite = jnp.all(jnp.isfinite(jnp.concatenate([x0, x1, u0, um, u1], axis=1)), axis=1, keepdims=True)
+        diverged = jnp.where(finite, jnp.inf, jnp.nan)  # the reference diverged / the trajectory is not finite
+        return jnp.max(jnp.where(jnp.isfinite(ref), jnp.abs(x1 - ref) / scale, diverged), axis=1)
 
     return errors
 
@@ -123,5 +129,5 @@ def local_errors(system: System, times, states, controls, params, *, midpoints: 
         um = 0.5 * (u[:-1] + u[1:])
     per_interval = np.asarray(_errors_fn(system, int(substeps))(
         params, t[:-1], np.diff(t), x[:-1], x[1:], u[:-1], um, u[1:]))
-    value = float(per_interval.max(initial=0.0)) if np.all(np.isfinite(per_interval)) else float("nan")
+    value = float("nan") if np.any(np.isnan(per_interval)) else float(per_interval.max(initial=0.0))
     return ErrorEstimate(value=value, intervals=per_interval, interval_times=t)

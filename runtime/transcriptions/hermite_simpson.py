@@ -21,24 +21,26 @@ from ._common import (
     state_scale,
 )
 from .base import AbstractTranscription
+from .grid import Grid, check_grid, column, grid_argument, node_times, weighted_sum
 
 __all__ = ["HermiteSimpson"]
 
 
 @dataclasses.dataclass(frozen=True)
 class HermiteSimpson(AbstractTranscription):
-    """Hermite-Simpson collocation on a uniform grid of N intervals (order 4), in compressed form.
+    """Hermite-Simpson collocation on a grid of N intervals (order 4), uniform unless ``grid`` is given, in
+    compressed form.
 
-    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h (x_0 = data.x0), and a control
-    u_{k+1/2} at each interval midpoint. The midpoint state is *not* a decision: it is the cubic Hermite
-    interpolant of the two nodes,
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k (x_0 = data.x0; t_k = k T / N, or
+    T grid[k]; h_k = t_{k+1} - t_k), and a control u_{k+1/2} at each interval midpoint. The midpoint state is *not*
+    a decision: it is the cubic Hermite interpolant of the two nodes,
 
-        x_{k+1/2} = (x_k + x_{k+1}) / 2 + (h / 8)(f_k - f_{k+1}),      f_{k+1/2} = f(x_{k+1/2}, u_{k+1/2}, t_k + h/2),
+        x_{k+1/2} = (x_k + x_{k+1}) / 2 + (h_k / 8)(f_k - f_{k+1}),   f_{k+1/2} = f(x_{k+1/2}, u_{k+1/2}, t_k + h_k/2),
 
     and with the Simpson rule for both the dynamics and the cost,
 
-        minimise    phi(x_N) + (h / 6) sum_k (L_k + 4 L_{k+1/2} + L_{k+1})
-        subject to  (x_{k+1} - x_k - (h / 6)(f_k + 4 f_{k+1/2} + f_{k+1})) / s = 0     k = 0..N-1
+        minimise    phi(x_N) + sum_k (h_k / 6)(L_k + 4 L_{k+1/2} + L_{k+1})
+        subject to  (x_{k+1} - x_k - (h_k / 6)(f_k + 4 f_{k+1/2} + f_{k+1})) / s = 0     k = 0..N-1
                     x_N,i = x_final,i  (required final values)
                     x_lower <= x_k <= x_upper,  u_lower <= u_k, u_{k+1/2} <= u_upper   (bounds on every node).
 
@@ -47,11 +49,13 @@ class HermiteSimpson(AbstractTranscription):
     not at the interpolated midpoints, and each defect block is dense in (x_k, x_{k+1}).
 
     Layout of z: ``[x_1..x_N (N n), u_0..u_N ((N + 1) m), u_{1/2}..u_{N-1/2} (N m)]``. ``unravel`` returns the
-    2N + 1 points of the uniform half-step grid (nodes and midpoints interleaved), so a solution can be
+    2N + 1 points of the half-step grid (nodes and midpoints interleaved), so a solution can be
     re-simulated with :func:`~myriad.runtime.simulate.simulate` on that grid.
 
     Attributes:
         intervals: N.
+        grid: None (uniform), or the N + 1 normalised node positions 0 = s_0 < ... < s_N = 1 (see ``grid.py``);
+            ``HermiteSimpson.on_grid(grid)`` sets ``intervals`` from it.
 
     References:
         M. Kelly, "An introduction to trajectory optimization: how to do your own direct collocation",
@@ -60,24 +64,45 @@ class HermiteSimpson(AbstractTranscription):
 
     label: ClassVar[str] = "hermite_simpson"
     quadrature: ClassVar[str] = "simpson"
+    order: ClassVar[int] = 4
 
     intervals: int = 50
+    grid: Grid | None = None
 
     @classmethod
-    def on_grid(cls, intervals: int, **options) -> "HermiteSimpson":
-        return cls(intervals=intervals, **options)
+    def on_grid(cls, intervals, **options) -> "HermiteSimpson":
+        intervals, grid = grid_argument(intervals)
+        return cls(intervals=intervals, grid=grid, **options)
 
     def __post_init__(self):
         if self.intervals < 1:
             raise ValueError(f"HermiteSimpson: intervals must be at least 1, got {self.intervals}")
+        object.__setattr__(self, "grid", check_grid("HermiteSimpson", self.grid, self.intervals))
+
+    @property
+    def grid_intervals(self) -> int:
+        return self.intervals
+
+    def with_grid(self, grid) -> "HermiteSimpson":
+        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
+
+    def _times(self, horizon: float):
+        """Node times, midpoint times, the 2N + 1 points of the half-step grid, and the step (see grid.py)."""
+        N = self.intervals
+        times, h = node_times(self.grid, N, horizon)
+        if self.grid is None:  # as always: the uniform half-step grid
+            return times, times[:-1] + 0.5 * h, np.linspace(0.0, float(horizon), 2 * N + 1), h
+        mids = times[:-1] + 0.5 * h
+        half = np.empty(2 * N + 1)
+        half[0::2], half[1::2] = times, mids
+        return times, mids, half, h
 
     def transcribe(self, system: System) -> NLP:
         N = self.intervals
         n, m = system.n_states, system.n_controls
         T = float(system.horizon)
-        h = T / N
-        times = np.linspace(0.0, T, N + 1)
-        mid_times = times[:-1] + 0.5 * h
+        times, mid_times, half_times, h = self._times(T)
+        hc = column(h)
         arrays = system.arrays()
         fixed, final = final_value_rows(system)
         sx, su = state_scale(system), control_scale(system)
@@ -93,7 +118,7 @@ class HermiteSimpson(AbstractTranscription):
             f = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))
             xs, us, ums = split(z, data)
             fs = f(xs, us, jnp.asarray(times))
-            xms = 0.5 * (xs[:-1] + xs[1:]) + (h / 8.0) * (fs[:-1] - fs[1:])
+            xms = 0.5 * (xs[:-1] + xs[1:]) + (hc / 8.0) * (fs[:-1] - fs[1:])
             return xs, us, ums, xms, fs, f(xms, ums, jnp.asarray(mid_times))
 
         def objective(z, data):
@@ -102,12 +127,12 @@ class HermiteSimpson(AbstractTranscription):
             xs, us, ums, xms, _, _ = collocate(z, data)
             Ls = L(xs, us, jnp.asarray(times))
             Lms = L(xms, ums, jnp.asarray(mid_times))
-            quad = (h / 6.0) * jnp.sum(Ls[:-1] + 4.0 * Lms + Ls[1:])
+            quad = weighted_sum(h, Ls[:-1] + 4.0 * Lms + Ls[1:], lambda h: h / 6.0)
             return quad + system.terminal_cost(xs[-1], T, params)
 
         def constraints(z, data):
             xs, _, _, _, fs, fms = collocate(z, data)
-            defects = (xs[1:] - xs[:-1] - (h / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / sx
+            defects = (xs[1:] - xs[:-1] - (hc / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / sx
             return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final])
 
         def unravel(z, data):
@@ -117,7 +142,7 @@ class HermiteSimpson(AbstractTranscription):
                 both = jnp.concatenate([nodes[:-1, None], mids[:, None]], axis=1)  # (N, 2, d)
                 return jnp.concatenate([jnp.reshape(both, (2 * N, -1)), nodes[-1:]], axis=0)
 
-            return jnp.asarray(np.linspace(0.0, T, 2 * N + 1)), interleave(xs, xms), interleave(us, ums)
+            return jnp.asarray(half_times), interleave(xs, xms), interleave(us, ums)
 
         def initial_guess(data):
             X = guess_states(system, data.x0, times[1:])
@@ -148,13 +173,11 @@ class HermiteSimpson(AbstractTranscription):
             unravel=unravel,
             jacobian_sparsity=sparsity(blocks),
             z_scale=np.concatenate([np.tile(sx, N), np.tile(su, 2 * N + 1)]),
-            name=f"{system.name}/hermite_simpson(N={N})",
+            name=f"{system.name}/hermite_simpson(N={N}{'' if self.grid is None else ', graded'})",
         )
 
     def sample(self, system, states, controls):
-        N = self.intervals
-        times = np.linspace(0.0, float(system.horizon), N + 1)
-        mids = times[:-1] + 0.5 * (times[1] - times[0])
+        times, mids, _, _ = self._times(system.horizon)
         X = np.asarray(states(times[1:]), dtype=np.float64)
         U = np.asarray(controls(times), dtype=np.float64)
         Um = np.asarray(controls(mids), dtype=np.float64)

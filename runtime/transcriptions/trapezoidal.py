@@ -21,19 +21,20 @@ from ._common import (
     state_scale,
 )
 from .base import AbstractTranscription
+from .grid import Grid, check_grid, column, grid_argument, node_times, weighted_sum
 
 __all__ = ["Trapezoidal"]
 
 
 @dataclasses.dataclass(frozen=True)
 class Trapezoidal(AbstractTranscription):
-    """Trapezoidal collocation on a uniform grid of N intervals (order 2).
+    """Trapezoidal collocation on a grid of N intervals (order 2), uniform unless ``grid`` is given.
 
-    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k = k h, h = T / N (x_0 = data.x0). With
-    f_k = f(x_k, u_k, t_k) and L_k = L(x_k, u_k, t_k):
+    Decision: states x_1..x_N and controls u_0..u_N at the nodes t_k (x_0 = data.x0): t_k = k T / N, or
+    t_k = T grid[k]; h_k = t_{k+1} - t_k. With f_k = f(x_k, u_k, t_k) and L_k = L(x_k, u_k, t_k):
 
-        minimise    phi(x_N) + (h / 2) sum_k (L_k + L_{k+1})
-        subject to  (x_{k+1} - x_k - (h / 2)(f_k + f_{k+1})) / s = 0     k = 0..N-1
+        minimise    phi(x_N) + sum_k (h_k / 2)(L_k + L_{k+1})
+        subject to  (x_{k+1} - x_k - (h_k / 2)(f_k + f_{k+1})) / s = 0     k = 0..N-1
                     x_N,i = x_final,i  (required final values)
                     x_lower <= x_k <= x_upper,  u_lower <= u_k <= u_upper   (bounds on every node)
 
@@ -41,27 +42,40 @@ class Trapezoidal(AbstractTranscription):
 
     Attributes:
         intervals: N.
+        grid: None (uniform), or the N + 1 normalised node positions 0 = s_0 < ... < s_N = 1 (see ``grid.py``);
+            ``Trapezoidal.on_grid(grid)`` sets ``intervals`` from it.
     """
 
     label: ClassVar[str] = "trapezoidal"
     quadrature: ClassVar[str] = "trapezoidal"
+    order: ClassVar[int] = 2
 
     intervals: int = 100
+    grid: Grid | None = None
 
     @classmethod
-    def on_grid(cls, intervals: int, **options) -> "Trapezoidal":
-        return cls(intervals=intervals, **options)
+    def on_grid(cls, intervals, **options) -> "Trapezoidal":
+        intervals, grid = grid_argument(intervals)
+        return cls(intervals=intervals, grid=grid, **options)
 
     def __post_init__(self):
         if self.intervals < 1:
             raise ValueError(f"Trapezoidal: intervals must be at least 1, got {self.intervals}")
+        object.__setattr__(self, "grid", check_grid("Trapezoidal", self.grid, self.intervals))
+
+    @property
+    def grid_intervals(self) -> int:
+        return self.intervals
+
+    def with_grid(self, grid) -> "Trapezoidal":
+        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
 
     def transcribe(self, system: System) -> NLP:
         N = self.intervals
         n, m = system.n_states, system.n_controls
         T = float(system.horizon)
-        h = T / N
-        times = np.linspace(0.0, T, N + 1)
+        times, h = node_times(self.grid, N, T)
+        hc = column(h)
         arrays = system.arrays()
         fixed, final = final_value_rows(system)
         sx, su = state_scale(system), control_scale(system)
@@ -76,13 +90,14 @@ class Trapezoidal(AbstractTranscription):
             params = data.params
             xs, us = nodes(z, data)
             Ls = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))(xs, us, jnp.asarray(times))
-            return 0.5 * h * jnp.sum(Ls[:-1] + Ls[1:]) + system.terminal_cost(xs[-1], T, params)
+            quad = weighted_sum(h, Ls[:-1] + Ls[1:], lambda h: 0.5 * h)
+            return quad + system.terminal_cost(xs[-1], T, params)
 
         def constraints(z, data):
             params = data.params
             xs, us = nodes(z, data)
             fs = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))(xs, us, jnp.asarray(times))
-            defects = (xs[1:] - xs[:-1] - 0.5 * h * (fs[:-1] + fs[1:])) / sx
+            defects = (xs[1:] - xs[:-1] - 0.5 * hc * (fs[:-1] + fs[1:])) / sx
             return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final])
 
         def unravel(z, data):
@@ -116,11 +131,11 @@ class Trapezoidal(AbstractTranscription):
             unravel=unravel,
             jacobian_sparsity=sparsity(blocks),
             z_scale=np.concatenate([np.tile(sx, N), np.tile(su, N + 1)]),
-            name=f"{system.name}/trapezoidal(N={N})",
+            name=f"{system.name}/trapezoidal(N={N}{'' if self.grid is None else ', graded'})",
         )
 
     def sample(self, system, states, controls):
-        times = np.linspace(0.0, float(system.horizon), self.intervals + 1)
+        times, _ = node_times(self.grid, self.intervals, system.horizon)
         X = np.asarray(states(times[1:]), dtype=np.float64)
         U = np.asarray(controls(times), dtype=np.float64)
         return np.concatenate([X.ravel(), U.ravel()])

@@ -168,3 +168,42 @@ def test_the_cli_warns_when_the_estimate_exceeds_the_tolerance(capsys, tmp_path)
     assert json.loads(out.read_text())["error_estimate"] > 1e-6
     assert main(argv + ["--intervals", "5", "--error-tolerance", "1e-3"]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method", ["heun", "trapezoidal", "hermite_simpson"])
+def test_the_estimate_follows_a_graded_grid(method):
+    # On a random grid the method's trajectory is x_{k+1} = R(-b h_k) x_k and each interval's local error is
+    # |exp(-b h_k) - R(-b h_k)| |x_k|, with its own h_k.
+    system = Decay()
+    data = default_data(system)
+    widths = np.random.default_rng(3).uniform(0.5, 1.5, 12)
+    grid = np.concatenate([[0.0], np.cumsum(widths) / widths.sum()])
+    grid[-1] = 1.0
+    h = np.diff(grid)
+    R = _STEPS[method](-B * h)
+    xs = np.concatenate([[1.0], np.cumprod(R)])
+    if method == "heun":
+        tr, z = SingleShooting.on_grid(grid, integrator=Heun()), np.zeros(13)
+    else:
+        tr = (Trapezoidal if method == "trapezoidal" else HermiteSimpson).on_grid(grid)
+        z = tr.sample(system, lambda t: np.interp(t, grid, xs)[:, None], lambda t: np.zeros((len(t), 1)))
+    nlp = transcribe(system, tr)
+    times, states, controls = (np.asarray(a) for a in nlp.unravel(jnp.asarray(z), data))
+    midpoints = method == "hermite_simpson"
+    np.testing.assert_allclose(states[:: 2 if midpoints else 1, 0], xs, rtol=1e-12)
+    estimate = local_errors(system, times, states, controls, data.params, midpoints=midpoints)
+    np.testing.assert_allclose(estimate.interval_times, grid, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(estimate.intervals, np.abs(np.exp(-B * h) - R) * xs[:-1], rtol=1e-4, atol=1e-17)
+
+
+def test_an_interval_whose_reference_diverges_has_an_infinite_error():
+    # x' = -b x with b h = 5e7 on each interval: the reference's RK4 substeps (b h / 16 = 3e6, far outside RK4's
+    # stability region, amplification ~ (b h / 16)^4 / 24 per substep) overflow. That is a step far too long, not a
+    # missing estimate: +inf, so it warns and is refined first; a trajectory that is itself not finite gives NaN.
+    system = Decay()
+    params = default_data(system, {"b": 1e8}).params
+    t, x, u = np.array([0.0, 0.5, 1.0]), np.array([[1.0], [0.5], [0.25]]), np.zeros((3, 1))
+    est = local_errors(system, t, x, u, params)
+    assert np.isinf(est.intervals).all() and est.value == math.inf
+    x[1, 0] = np.nan
+    assert math.isnan(local_errors(system, t, x, u, params).value)

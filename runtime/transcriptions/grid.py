@@ -1,0 +1,137 @@
+"""Non-uniform grids: the ``grid`` option of every direct transcription, its node times, and rollouts on it.
+
+A grid is a tuple of normalised node positions 0 = s_0 < s_1 < ... < s_N = 1; on a horizon T the nodes are
+t_k = T s_k and the steps h_k = t_{k+1} - t_k. ``grid=None`` is the uniform grid t_k = k T / N, computed exactly as
+before grids existed (``np.linspace`` and the scalar step T / N), so a transcription without a grid builds bit for
+bit the NLP it always did. Node times are computed here and only here (:func:`node_times`), so that a free final
+time (times scaled to [0, 1]) has one place to change.
+
+A tuple, not an array: transcriptions are frozen, hashable dataclasses used as static ``jax.jit`` arguments and as
+keys of the NLP cache, so their grid must hash by value.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..integrators import AbstractIntegrator
+
+__all__ = ["Grid", "check_grid", "column", "grid_argument", "node_times", "rollout_on", "rollout_with_cost_on",
+           "weighted_sum"]
+
+Grid = tuple[float, ...]
+
+
+def check_grid(owner: str, grid: Sequence[float] | None, intervals: int, count: str = "intervals") -> Grid | None:
+    """``grid`` as a tuple of floats, after checking it is a grid of ``intervals`` intervals on [0, 1].
+
+    Args:
+        owner: the class name, for the messages.
+        grid: the node positions, any sequence of numbers (a list or array is converted), or None (uniform).
+        intervals: the number of intervals the transcription's own size field says.
+        count: the name of that field (``controls`` for single shooting), for the messages.
+
+    Raises:
+        ValueError: what is wrong and how to fix it.
+    """
+    if grid is None:
+        return None
+    try:
+        s = np.asarray(grid, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{owner}: grid must be a sequence of numbers in [0, 1], got {grid!r}") from None
+    if s.ndim != 1 or s.size < 2:
+        raise ValueError(f"{owner}: grid must be a flat sequence of at least 2 node positions (0, ..., 1), "
+                         f"got shape {s.shape}")
+    if not np.all(np.isfinite(s)):
+        raise ValueError(f"{owner}: grid has non-finite node positions")
+    if s[0] != 0.0 or s[-1] != 1.0:
+        raise ValueError(f"{owner}: grid must start at 0 and end at 1 (positions normalised by the horizon), "
+                         f"got {s[0]:g} ... {s[-1]:g}")
+    bad = np.flatnonzero(np.diff(s) <= 0.0)
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(f"{owner}: grid must be strictly increasing; positions {k} and {k + 1} are "
+                         f"{s[k]:g} and {s[k + 1]:g}")
+    if s.size - 1 != intervals:
+        raise ValueError(f"{owner}: the grid has {s.size - 1} intervals but {count} = {intervals}; build it with "
+                         f"{owner}.on_grid(grid), which takes the size from the grid")
+    return tuple(float(v) for v in s)
+
+
+def node_times(grid: Grid | None, intervals: int, horizon: float) -> tuple[np.ndarray, Any]:
+    """The node times t_0..t_N and the step: the float T / N on the uniform grid, else the (N,) steps.
+
+    The uniform case returns exactly what the transcriptions always computed, so their NLPs stay bit for bit the
+    same; callers branch on ``isinstance(h, float)`` where a formula differs (a sum of h-weighted terms).
+    """
+    T = float(horizon)
+    if grid is None:
+        return np.linspace(0.0, T, intervals + 1), T / intervals
+    times = T * np.asarray(grid, dtype=np.float64)
+    return times, np.diff(times)
+
+
+def grid_argument(nodes: int | Sequence[float]) -> tuple[int, Grid | None]:
+    """``on_grid``'s argument as (intervals, grid): an int N is the uniform grid of N intervals, a sequence of node
+    positions is that grid (checked by the transcription's ``__post_init__``)."""
+    if isinstance(nodes, (int, np.integer)) and not isinstance(nodes, bool):
+        return int(nodes), None
+    grid = tuple(float(v) for v in np.asarray(nodes, dtype=np.float64).ravel())
+    return len(grid) - 1, grid
+
+
+def weighted_sum(h: Any, terms: Any, weight: Callable[[Any], Any]) -> Any:
+    """sum_k weight(h_k) terms_k: ``weight(h) * sum(terms)`` for the uniform float step (the formula the NLPs always
+    used, so they stay bit for bit the same), ``sum(weight(h) * terms)`` for the (N,) steps of a grid."""
+    if isinstance(h, float):
+        return weight(h) * jnp.sum(terms)
+    return jnp.sum(weight(jnp.asarray(h)) * terms)
+
+
+def column(h: Any) -> Any:
+    """The step as a factor of (N, n) per-interval arrays: the float itself, or the steps as an (N, 1) column."""
+    return h if isinstance(h, float) else jnp.asarray(h)[:, None]
+
+
+def rollout_on(integrator: AbstractIntegrator, f: Callable, x0: Any, times: Any, controls: Any,
+               checkpoint: bool = False) -> Any:
+    """Integrate x' = f(x, u, t) from x(times[0]) = x0 over the nodes ``times`` (any spacing), one step per
+    interval, the control linear between its node values (as :func:`~myriad.runtime.integrators.rollout`).
+
+    Returns:
+        The states at the nodes, shape (K, n); row 0 is x0.
+    """
+    x0 = jnp.asarray(x0)
+    times = jnp.asarray(times)
+    controls = jnp.asarray(controls)
+
+    def body(x, inputs):
+        t, h, u0, u1 = inputs
+        x_next = integrator.step(f, x, t, h, u0, u1)
+        return x_next, x_next
+
+    if checkpoint:
+        body = jax.checkpoint(body, prevent_cse=False, policy=jax.checkpoint_policies.nothing_saveable)
+    _, xs = jax.lax.scan(body, x0, (times[:-1], times[1:] - times[:-1], controls[:-1], controls[1:]))
+    return jnp.concatenate([x0[None], xs], axis=0)
+
+
+def rollout_with_cost_on(integrator: AbstractIntegrator, f: Callable, running_cost: Callable, x0: Any, times: Any,
+                         controls: Any, checkpoint: bool = False) -> tuple[Any, Any]:
+    """:func:`rollout_on` of the state augmented with the accumulated running cost (as
+    :func:`~myriad.runtime.integrators.rollout_with_cost`): ``(states (K, n), cost (K,))``."""
+    x0 = jnp.asarray(x0)
+    n = x0.shape[0]
+
+    def f_aug(y, u, t):
+        x = y[:n]
+        return jnp.concatenate([f(x, u, t), jnp.reshape(running_cost(x, u, t), (1,))])
+
+    y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
+    ys = rollout_on(integrator, f_aug, y0, times, controls, checkpoint)
+    return ys[:, :n], ys[:, n]

@@ -1,0 +1,175 @@
+"""Mesh refinement: solve, estimate the error on every interval, split the intervals that miss the tolerance, repeat.
+
+``solve(system, transcription, solver, tolerance=1e-6)`` (:func:`~myriad.runtime.solve.solve`) calls
+:func:`solve_refined`. Each level solves the NLP on the current grid (warm-started from the previous level's solution,
+interpolated onto the new grid with the transcription's ``sample``), reads the relative local error of every
+interval (:mod:`~myriad.runtime.transcriptions.error`), and stops when its maximum meets the tolerance; otherwise every
+mesh interval k whose error e_k exceeds the tolerance is cut into n_k equal pieces, and the grid becomes
+non-uniform (the transcription's ``grid`` option, :meth:`AbstractTranscription.with_grid`).
+
+How many pieces (Betts 2010, sec. 4.7, in its per-interval form): a method of order p has local error
+O(h^{p+1}), so cutting an interval into n pieces divides its error by n^{p+1}. Where the asymptotic rate does not
+hold yet (a coarse grid across a boundary layer, a state constraint) the error falls more slowly; like Betts we
+measure the order actually seen: an interval that came from cutting a parent of error e_parent into n pieces has
+observed local order q = log(e_parent / e_k) / log(n), clipped to [1, p + 1], and the next cut uses that q. Then
+
+    n_k = ceil( (e_k / (safety * tol))^(1 / q) ),   clipped to [2, max_split],
+
+with safety = 1/2 (aim below the tolerance, so one more level usually suffices) and max_split = 6 (Betts' M1 = 5
+points added per interval: a cut never trusts an extrapolation over more than that). An interval whose error is
+infinite (the reference integration diverged: far too long for the dynamics) gets max_split pieces. Intervals that
+meet the tolerance are kept as they are; none are merged (GPOPS-II and PSOPT may also remove points where the error
+is far below the tolerance; we do not, so the grid only grows). Multiple shooting refines its shooting intervals,
+each keeping its S integrator steps, equal within the interval.
+
+Stopping: the estimate meets the tolerance (``met``); or a limit is reached, which is reported and never called a
+success: ``max_refinements`` levels after the first solve, a next grid above ``max_intervals``, an NLP that did not
+converge, an estimate that is not a number. The last solution is returned either way, with ``refinement`` =
+``{"met", "tolerance", "reason", "history"}`` (see :class:`~myriad.runtime.solution.Solution`).
+
+Each level changes the NLP's shapes, so each level is traced and compiled once (its ``compile_seconds``); a second
+refinement of the same problem reuses every level's compiled code, since the grids come out the same.
+
+References:
+    J. T. Betts, "Practical Methods for Optimal Control and Estimation Using Nonlinear Programming", 2nd ed.,
+    SIAM 2010, sec. 4.7 (mesh refinement; 4.7.1 the error estimate, 4.7.4 the order reduction and the number of
+    points to add).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from ..data import ProblemData
+from ..solution import Solution
+from ..system import System
+from .base import AbstractTranscription
+
+__all__ = ["MeshRefinement", "refine_positions", "solve_refined", "split_counts"]
+
+SAFETY = 0.5
+
+
+@dataclasses.dataclass(frozen=True)
+class MeshRefinement:
+    """What mesh refinement aims at and where it stops.
+
+    Attributes:
+        tolerance: the target for the error estimate (the relative local error of the dynamics, max over
+            intervals and states).
+        max_refinements: the most refined grids solved after the first one.
+        max_intervals: the largest control grid (intervals) refinement may build.
+        max_split: the most pieces one interval is cut into per level (at least 2).
+    """
+
+    tolerance: float
+    max_refinements: int = 10
+    max_intervals: int = 2000
+    max_split: int = 6
+
+    def __post_init__(self):
+        if not (isinstance(self.tolerance, (int, float)) and math.isfinite(self.tolerance) and self.tolerance > 0):
+            raise ValueError(f"tolerance must be a positive number, got {self.tolerance!r}")
+        if not (isinstance(self.max_refinements, int) and self.max_refinements >= 0):
+            raise ValueError(f"max_refinements must be a whole number >= 0, got {self.max_refinements!r}")
+        if not (isinstance(self.max_intervals, int) and self.max_intervals >= 1):
+            raise ValueError(f"max_intervals must be a whole number >= 1, got {self.max_intervals!r}")
+        if not (isinstance(self.max_split, int) and self.max_split >= 2):
+            raise ValueError(f"max_split must be a whole number >= 2, got {self.max_split!r}")
+
+
+def split_counts(errors: np.ndarray, tolerance: float, order: int, max_split: int,
+                 parent_errors: np.ndarray | None = None, pieces: np.ndarray | None = None) -> np.ndarray:
+    """How many equal pieces to cut each mesh interval into (1: keep it); see the module docstring.
+
+    Args:
+        errors: (K,) the error of each mesh interval (+inf allowed).
+        tolerance: the target.
+        order: p, the method's global order (local error O(h^{p+1})).
+        max_split: the most pieces per interval.
+        parent_errors, pieces: (K,) for intervals made by the previous cut, the error of the interval they were cut
+            from and into how many pieces (1 where not cut); None on the first level.
+
+    Returns:
+        (K,) int counts >= 1.
+    """
+    errors = np.asarray(errors, dtype=np.float64)
+    q = np.full(errors.shape, order + 1.0)
+    if parent_errors is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            seen = np.log(parent_errors / errors) / np.log(pieces)
+        cut = (pieces > 1) & np.isfinite(seen) & np.isfinite(parent_errors)
+        q = np.where(cut, np.clip(seen, 1.0, order + 1.0), q)
+        # No decrease at all (or worse) after a cut: the asymptotic model says nothing; assume the lowest order.
+        q = np.where((pieces > 1) & np.isfinite(parent_errors) & ~(errors < parent_errors), 1.0, q)
+    with np.errstate(over="ignore", invalid="ignore"):
+        n = np.ceil((errors / (SAFETY * tolerance)) ** (1.0 / q))
+    n = np.where(np.isfinite(n), n, max_split)
+    n = np.clip(n, 2, max_split)
+    return np.where(errors > tolerance, n, 1).astype(np.int64)
+
+
+def refine_positions(mesh: np.ndarray, counts: np.ndarray, steps: int = 1) -> np.ndarray:
+    """The new control grid: mesh interval k cut into counts[k] equal pieces, each of ``steps`` equal steps.
+
+    Args:
+        mesh: (K + 1,) normalised mesh nodes (0 ... 1).
+        counts: (K,) pieces per mesh interval.
+        steps: grid intervals per mesh interval (multiple shooting's S).
+
+    Returns:
+        (sum(counts) * steps + 1,) normalised node positions, 0 and 1 exact.
+    """
+    parts = [np.linspace(a, b, int(c) * steps + 1)[:-1] for a, b, c in zip(mesh[:-1], mesh[1:], counts)]
+    return np.concatenate(parts + [np.ones(1)])
+
+
+def _interpolant(times: np.ndarray, values: np.ndarray):
+    return lambda t: np.stack([np.interp(np.asarray(t), times, values[:, i]) for i in range(values.shape[1])], 1)
+
+
+def solve_refined(system: System, transcription: AbstractTranscription, solver: Any, data: ProblemData,
+                  config: MeshRefinement, z0: Any = None) -> Solution:
+    """Solve on successively refined grids until the error estimate meets ``config.tolerance`` or a limit is hit.
+
+    Returns:
+        The last level's :class:`Solution` (not re-simulated), with ``refinement`` filled in.
+    """
+    tr, history = transcription, []
+    parent_errors = pieces = None
+    S = transcription.steps_per_mesh_interval
+    for level in range(config.max_refinements + 1):
+        start = time.perf_counter()
+        sol = tr.solve_problem(system, solver, data, z0)
+        N, error = tr.grid_intervals, sol.error_estimate
+        history.append({"intervals": N, "error": float(error), "cost": float(sol.cost),
+                        "converged": bool(sol.converged), "seconds": time.perf_counter() - start})
+        met = False
+        if not sol.converged:
+            reason = f"the NLP did not converge on the grid of {N} intervals ({sol.status}: {sol.message})"
+        elif math.isnan(error):
+            reason = f"the error estimate is not a number on the grid of {N} intervals (a non-finite trajectory)"
+        elif error <= config.tolerance:
+            met, reason = True, f"the error estimate {error:.2e} met the tolerance on {N} intervals"
+        elif level == config.max_refinements:
+            reason = f"max_refinements = {config.max_refinements} reached with the error estimate at {error:.2e}"
+        else:
+            mesh_errors = np.asarray(sol.interval_errors).reshape(-1, S).max(axis=1)
+            counts = split_counts(mesh_errors, config.tolerance, tr.order, config.max_split, parent_errors, pieces)
+            positions = refine_positions(tr.positions()[::S], counts, S)
+            if positions.size - 1 > config.max_intervals:
+                reason = (f"the next grid would have {positions.size - 1} intervals, more than max_intervals = "
+                          f"{config.max_intervals}, with the error estimate at {error:.2e}")
+            else:
+                parent_errors, pieces = np.repeat(mesh_errors, counts), np.repeat(counts, counts)
+                tr = tr.with_grid(tuple(positions))
+                z0 = tr.sample(system, _interpolant(sol.times, sol.states), _interpolant(sol.times, sol.controls))
+                continue
+        break
+    refinement = {"met": met, "tolerance": float(config.tolerance), "reason": reason, "history": history}
+    return dataclasses.replace(sol, refinement=refinement)
