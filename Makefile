@@ -9,6 +9,7 @@ setup:
 
 build: setup
 	$(BIN)/myriadc build specs/
+	$(BIN)/myriadc build specs/peers -o runtime/systems/peers
 	$(BIN)/myriadc card specs/ -o docs/cards
 
 lint: setup
@@ -16,11 +17,13 @@ lint: setup
 
 check: setup
 	$(BIN)/myriadc build specs/ --check
+	$(BIN)/myriadc build specs/peers -o runtime/systems/peers --check
 	$(BIN)/myriadc card specs/ -o docs/cards --check
 
 test: setup
 	$(BIN)/ruff check .
 	$(BIN)/myriadc build specs/ --check
+	$(BIN)/myriadc build specs/peers -o runtime/systems/peers --check
 	$(BIN)/myriadc card specs/ -o docs/cards --check
 	$(BIN)/python -m pytest -n 2 --dist loadfile  # two workers, a file each: 8.7 min instead of 11.9 on 2 cores
 

@@ -1,4 +1,5 @@
-"""Load a system by name (the shipped, committed modules) or compile any spec path on the fly.
+"""Load a system by name (the shipped, committed modules), a peer problem as ``peers/<name>`` (the committed modules
+of ``specs/peers/``, generated into ``runtime/systems/peers/``), or compile any spec path on the fly.
 
 Specs outside the repository are compiled with :mod:`myriad.compiler` into a cache folder keyed by the spec's content
 and the compiler's own source, so editing either recompiles and nothing stale is ever imported.
@@ -16,7 +17,9 @@ from pathlib import Path
 from . import systems as _registry
 from .system import System
 
-__all__ = ["load", "cache_dir"]
+__all__ = ["load", "cache_dir", "PEER_PREFIX"]
+
+PEER_PREFIX = "peers/"  # load("peers/goddard_rocket"): a problem of the peer collection (specs/peers/README.md)
 
 _loaded: dict[str, System] = {}
 
@@ -50,8 +53,11 @@ def load(target: str | os.PathLike) -> System:
     if text in _registry.MODULES and not text.endswith((".yaml", ".yml")):
         return _registry.get(text)
     path = Path(text)
+    if text.startswith(PEER_PREFIX) and not path.is_file():
+        return _peer(text[len(PEER_PREFIX):])
     if not path.is_file():
-        raise KeyError(f"{text!r} is neither a shipped system ({', '.join(_registry.NAMES)}) nor a spec file")
+        raise KeyError(f"{text!r} is neither a shipped system ({', '.join(_registry.NAMES)}), a peer problem "
+                       f"({PEER_PREFIX}NAME) nor a spec file")
     from myriad.compiler import compile_file  # the compiler (sympy) is only needed for specs loaded by path
 
     raw = path.read_bytes()
@@ -73,3 +79,11 @@ def load(target: str | os.PathLike) -> System:
     spec.loader.exec_module(module)
     _loaded[key] = module.SYSTEM
     return module.SYSTEM
+
+
+def _peer(name: str) -> System:
+    from .systems import peers
+
+    if name not in peers.NAMES:
+        raise KeyError(f"unknown peer problem {name!r}; the peer collection: {', '.join(peers.NAMES)}")
+    return peers.get(name)
