@@ -187,6 +187,13 @@ def _cmd_solve(args) -> int:
         return _usage(error)
     warn_above = args.error_tolerance or args.tolerance or 1e-6
     system = load(args.system)
+    if not method.uses_solver:  # an indirect method: refused before any work (every direct transcription enforces them)
+        from .system import UnsupportedFeature
+
+        try:
+            system.require_schema1_features(f"--transcription {args.transcription}")
+        except UnsupportedFeature as exc:
+            return _usage(f"{exc}; choose a direct transcription")
     sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None, tolerance=args.tolerance,
                 max_refinements=args.max_refinements, max_intervals=args.max_intervals)
     state = "converged" if sol.converged else "NOT CONVERGED"
@@ -198,6 +205,12 @@ def _cmd_solve(args) -> int:
           f"constraint violation {sol.constraint_violation:.2e}")
     print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
           f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
+    if system.free_horizon:
+        lo, hi = system.horizon_bounds
+        print(f"  final time T = {sol.final_time:.10g} (free in [{lo:g}, {hi:g}], guess {system.horizon_guess:g})")
+    if system.n_path:
+        print(f"  path constraints ({', '.join(system.path_constraint_names)}): largest violation over the nodes "
+              f"{sol.path_violation:.2e}")
     _report_error_estimate(sol, warn_above)
     _report_refinement(sol)
     print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s (last grid)")

@@ -49,6 +49,10 @@ class Solution:
         interval_errors: (N,) that error on each interval of the method's grid (max over states), or None.
         intervals: the size of the final control grid, N intervals (uniform or not; for multiple shooting all
             M S integrator steps); None where the method has no such grid (the indirect sweep).
+        final_time: T, the last of ``times``: the fixed horizon, or the solved one when it is free (schema 2).
+        path_violation: the largest amount by which a path constraint leaves its bounds, max over the points of
+            ``times`` (every node, and Hermite-Simpson's midpoints) and the constraints, in their own units; 0.0 for
+            a system without path constraints, NaN where not computed (the indirect sweep).
         refinement: None for a single solve; after mesh refinement (``solve(..., tolerance=...)``,
             :mod:`~myriad.runtime.transcriptions.refine`) a dict: ``met`` (the error estimate reached the
             tolerance), ``tolerance``, ``reason`` (why refinement stopped), ``history`` (one dict per solve:
@@ -80,6 +84,8 @@ class Solution:
     error_estimate: float = math.nan
     interval_errors: np.ndarray | None = None
     intervals: int | None = None
+    final_time: float = math.nan
+    path_violation: float = math.nan
     refinement: dict | None = None
 
     @property
@@ -105,6 +111,7 @@ class Solution:
             "simulated_bound_violation": json_number(self.simulated_bound_violation),
             "error_estimate": json_number(self.error_estimate),
             "intervals": self.intervals,
+            "final_time": json_number(self.final_time), "path_violation": json_number(self.path_violation),
             "refinement": None if self.refinement is None else _refinement_record(self.refinement),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }

@@ -64,17 +64,22 @@ def solve(
         resimulate: also evaluate the controls with the adaptive integrator.
         tolerance: refine the mesh (:mod:`~myriad.runtime.transcriptions.refine`): solve again on non-uniform grids,
             splitting the intervals whose error estimate exceeds ``tolerance``, until the estimate meets it or a limit
-            is reached (direct transcriptions only). None: one solve on the transcription's own grid.
+            is reached (direct transcriptions only; with a free final time the grid is refined in tau = t / T and
+            each level starts from the previous T). None: one solve on the transcription's own grid.
         max_refinements: the most refined grids after the first solve (default 10); needs ``tolerance``.
         max_intervals: the largest grid refinement may build (default 2000); needs ``tolerance``.
 
     Returns:
         A :class:`Solution`; check ``converged`` (a failed solve is returned, never reported as a success) and,
-        after refinement, ``refinement["met"]`` (or ``accurate`` for both).
+        after refinement, ``refinement["met"]`` (or ``accurate`` for both). Schema 2 systems: ``final_time`` is the
+        solved T of a free final time, ``path_violation`` the largest path-constraint violation over the points.
 
     Raises:
         ValueError: refinement options without ``tolerance``, invalid ones, or ``tolerance`` for an indirect
             method; raised before any work.
+        UnsupportedFeature: an indirect method on a system with path constraints or a free final time
+            (:meth:`~myriad.runtime.system.System.require_schema1_features`); every direct transcription enforces
+            both.
     """
     refine = _refinement(tolerance, max_refinements, max_intervals)
     system = load(system) if isinstance(system, str) else system

@@ -256,6 +256,9 @@ def _refuse_solver(solver: Any) -> None:
 
 
 def _check_available(system: System) -> None:
+    # Pontryagin's conditions as compiled have no multipliers for path constraints and no transversality condition
+    # for a free final time: the sweep would solve another problem and call it this one's.
+    system.require_schema1_features("the forward-backward sweep (fbsm); use a direct transcription")
     if system.optimal_control_kind == "none":
         raise OptimalControlUnavailable(
             f"{system.name}: the forward-backward sweep needs the optimal control u*(x, lambda, t), which the compiler "

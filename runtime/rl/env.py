@@ -138,6 +138,9 @@ class Env:
     options: EnvOptions = EnvOptions()
 
     def __post_init__(self):
+        # An episode runs on the fixed horizon with the cost as reward: a free final time has no horizon to run on
+        # (``system.horizon`` is only its guess) and the reward would not see path constraints.
+        self.system.require_schema1_features("the RL environment")
         lo, hi = self.control_bounds
         free = [n for n, a, b in zip(self.system.control_names, lo, hi) if not (np.isfinite(a) and np.isfinite(b))]
         if free and self.options.normalize_actions:

@@ -37,7 +37,7 @@ import numpy as np
 from ..atomic import atomic_open, atomic_write_text
 from ..integrators import INTEGRATORS, AbstractIntegrator, Heun, rollout
 from ..loader import load
-from ..system import System
+from ..system import System, UnsupportedFeature
 
 __all__ = ["Sampling", "Trajectories", "Dataset", "make_dataset", "save_dataset", "load_dataset"]
 
@@ -245,8 +245,16 @@ def make_dataset(system: System | str | os.PathLike, sampling: Sampling = Sampli
     Raises:
         ValueError: a bound the sampling needs is infinite; bad sizes, seed or ``around``; non-finite generated
             trajectories (the true dynamics blew up; the message says how many and which). RuntimeError: no float64.
+            UnsupportedFeature: a system with a free final time (no horizon to sample on).
     """
     system = system if isinstance(system, System) else load(system)
+    if system.free_horizon:
+        # The trajectories are sampled on [0, T]; with a free final time ``system.horizon`` is only the guess of T.
+        lo, hi = system.horizon_bounds
+        raise UnsupportedFeature(
+            f"make_dataset: {system.name} has a free final time (T in [{lo:g}, {hi:g}]), so there is no horizon to "
+            f"sample trajectories on (its horizon {system.horizon:g} is only the guess); give the spec a fixed "
+            f"horizon for system identification")
     if jax.dtypes.canonicalize_dtype(np.float64) != np.float64:
         raise RuntimeError("make_dataset needs float64: call jax.config.update('jax_enable_x64', True) first")
     sizes, seed = tuple(_count(v) for v in trajectories), _count(seed)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Iterable
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -19,6 +20,10 @@ __all__ = [
     "final_value_rows",
     "bounded_free_states",
     "node_state_bounds",
+    "path_scale",
+    "path_rows",
+    "path_bounds",
+    "final_time_variable",
 ]
 
 
@@ -135,3 +140,48 @@ def node_state_bounds(system: System, nodes: int) -> tuple[np.ndarray, np.ndarra
     lo[-1, system.final_mask] = -np.inf
     hi[-1, system.final_mask] = np.inf
     return lo.ravel(), hi.ravel()
+
+
+# ---- schema 2: path constraints and a free final time ---------------------------------------------------------------
+
+
+def path_scale(system: System) -> np.ndarray:
+    """Nominal magnitudes of the path constraints (n_path,): max |finite bound|, else 1 (as the state bounds')."""
+    return nominal_scale(np.asarray(system.path_lower, dtype=np.float64),
+                         np.asarray(system.path_upper, dtype=np.float64))
+
+
+def path_rows(system: System, params: Any, xs: Any, us: Any, ts: Any) -> Any:
+    """The path-constraint rows at K points, g(x_k, u_k, t_k) / scale, point-major: (K * n_path,).
+
+    Empty (and free of any evaluation) for a system without path constraints, so that a schema 1 NLP stays the
+    NLP it always was.
+    """
+    if not system.n_path:
+        return jnp.zeros((0,), dtype=jnp.result_type(xs))
+    g = jax.vmap(lambda x, u, t: system.path_constraints(x, u, t, params))(xs, us, jnp.asarray(ts))
+    return (g / jnp.asarray(path_scale(system))).ravel()
+
+
+def path_bounds(system: System, points: int) -> tuple[np.ndarray, np.ndarray]:
+    """The bounds of :func:`path_rows` at ``points`` points: path_lower / scale, path_upper / scale, tiled."""
+    scale = path_scale(system)
+    lo = np.asarray(system.path_lower, dtype=np.float64) / scale
+    hi = np.asarray(system.path_upper, dtype=np.float64) / scale
+    return np.tile(lo, points), np.tile(hi, points)
+
+
+def final_time_variable(system: System) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The free final time as the last decision variable: ``(lower, upper, scale, guess)``, each of shape (1,), or
+    of shape (0,) when the horizon is fixed (so that concatenating them changes nothing).
+
+    Its nominal scale is the guess: the bounds of a minimum-time problem are often wide ([0.1, 10] around T* = 2),
+    and the largest of them would make the variable look ten times smaller than it is.
+    """
+    if not system.free_horizon:
+        empty = np.zeros(0)
+        return empty, empty, empty, empty
+    lo, hi = (float(b) for b in system.horizon_bounds)
+    guess = float(system.horizon_guess if system.horizon_guess is not None else system.horizon)
+    scale = abs(guess) if guess != 0.0 else nominal_scale(np.array([lo]), np.array([hi]))[0]
+    return np.array([lo]), np.array([hi]), np.array([scale]), np.array([guess])

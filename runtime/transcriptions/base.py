@@ -5,6 +5,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import functools
+import math
 from typing import Any, Callable, ClassVar
 
 import jax
@@ -19,7 +20,7 @@ from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradi
 from ..system import System
 from .error import local_errors
 
-__all__ = ["AbstractTranscription", "TrajectoryFn", "transcribe"]
+__all__ = ["AbstractTranscription", "TrajectoryFn", "path_violation", "sample_final_time", "transcribe"]
 
 # t (K,) -> values (K, d): a trajectory evaluated at an array of times.
 TrajectoryFn = Callable[[np.ndarray], Any]
@@ -36,16 +37,26 @@ class AbstractTranscription(AbstractMethod):
       on it).
     - The objective is J = phi(x(T)) + int L dt in minimisation form, in the transcription's quadrature.
     - Constraints are ordered ``[dynamics defects (collocation / multiple shooting), required final values,
-      final-state bounds (single shooting)]``. Equality rows are residuals with c_lower = c_upper = 0; required
-      final values appear as x_i(T) - x_final,i. Defect rows are divided by the state's nominal scale; required
-      final values are *not* scaled, so a solver's constraint tolerance is the absolute tolerance on x_i(T).
+      final-state bounds (single shooting), path constraints]``. Equality rows are residuals with
+      c_lower = c_upper = 0; required final values appear as x_i(T) - x_final,i. Defect rows are divided by the
+      state's nominal scale; required final values are *not* scaled, so a solver's constraint tolerance is the
+      absolute tolerance on x_i(T).
+    - Path constraints (schema 2) are the last rows, point-major (all of point 0's, then point 1's ...):
+      path_lower / s <= g(x_k, u_k, t_k) / s <= path_upper / s, with s the constraint's nominal scale
+      (:func:`~myriad.runtime.transcriptions._common.path_scale`), at every point ``unravel`` returns (every node;
+      Hermite-Simpson's midpoints too; for shooting the control nodes, with the states the rollout reaches there).
+    - A free final time (schema 2, ``system.free_horizon``) is the *last* entry of ``z``, bounded by
+      ``horizon_bounds``, started at ``horizon_guess``, scaled by the guess. The grid is in tau in [0, 1] and the
+      node times are t_k = T s_k (``grid.free_node_times``), which is the time scaling x' = T f in tau; the terminal
+      cost is evaluated at t = T.
     - Control and state bounds are ``z_lower`` / ``z_upper`` (infinite where unbounded). A state with a required
       final value has no bound at the final node (the equality pins it; a duplicate active bound would make the
       constraint gradients linearly dependent). ``z_scale`` holds nominal magnitudes from
       :func:`~myriad.runtime.transcriptions.state_scale` and :func:`~myriad.runtime.transcriptions.control_scale`.
     - The functions are pure and not jitted: the solver jits them with ``data`` as a traced argument, so new
       parameters or a new x0 reuse the compiled code, and a batch of ``data`` is one ``jax.vmap``.
-    - ``unravel(z, data)`` returns ``(times, states, controls)`` on the transcription's own grid, x(0) included.
+    - ``unravel(z, data)`` returns ``(times, states, controls)`` on the transcription's own grid, x(0) included,
+      in physical time (ending at the solved T when it is free).
     - Every transcription has a ``grid`` field: None for the uniform grid, or a tuple of normalised node positions
       (``grid.py``); ``on_grid`` accepts an interval count or such positions, ``with_grid`` re-grids an instance
       (mesh refinement, ``refine.py``).
@@ -86,7 +97,8 @@ class AbstractTranscription(AbstractMethod):
         :class:`~myriad.runtime.data.ProblemData` (see :func:`~myriad.runtime.data.default_data`)."""
 
     @abc.abstractmethod
-    def sample(self, system: System, states: TrajectoryFn, controls: TrajectoryFn) -> np.ndarray:
+    def sample(self, system: System, states: TrajectoryFn, controls: TrajectoryFn,
+               final_time: float | None = None) -> np.ndarray:
         """The decision vector that samples given trajectories on this transcription's grid.
 
         Useful to warm-start from another solution (interpolate it) and to check a known solution.
@@ -95,6 +107,9 @@ class AbstractTranscription(AbstractMethod):
             system: the system the NLP was built for.
             states: times (K,) -> states (K, n_states).
             controls: times (K,) -> controls (K, n_controls).
+            final_time: the horizon the trajectories live on, in physical time: with a free final time, the T of
+                the sample (its last entry); None for ``system.horizon`` (the fixed horizon, or the guess of a free
+                one). An argument rather than read from the functions, which are plain callables without a domain.
 
         Returns:
             ``z``, a float64 array of shape (n_variables,).
@@ -126,6 +141,44 @@ class AbstractTranscription(AbstractMethod):
                 for i, res in enumerate(results)]
 
 
+def sample_final_time(system: System, final_time: float | None) -> float:
+    """The horizon a ``sample`` is taken on (see :meth:`AbstractTranscription.sample`).
+
+    Raises:
+        ValueError: a final time other than the fixed horizon of a system whose horizon is not free.
+    """
+    if final_time is None:
+        return float(system.horizon)
+    T = float(final_time)
+    if not system.free_horizon and not math.isclose(T, float(system.horizon), rel_tol=1e-12):
+        raise ValueError(f"sample: final_time = {T:g}, but {system.name}'s horizon is fixed at {system.horizon:g}; "
+                         f"pass final_time=None")
+    if not (math.isfinite(T) and T > 0.0):
+        raise ValueError(f"sample: final_time must be a positive number, got {final_time!r}")
+    return T
+
+
+@functools.lru_cache(maxsize=256)
+def _path_violation_fn(system: System):
+    lower = jnp.asarray(np.asarray(system.path_lower, dtype=np.float64))
+    upper = jnp.asarray(np.asarray(system.path_upper, dtype=np.float64))
+
+    @jax.jit
+    def violation(times, states, controls, params):
+        g = jax.vmap(lambda x, u, t: system.path_constraints(x, u, t, params))(states, controls, times)
+        return jnp.max(jnp.maximum(jnp.maximum(lower - g, g - upper), 0.0))
+
+    return violation
+
+
+def path_violation(system: System, times, states, controls, params) -> float:
+    """max over the points and the path constraints of the amount by which g leaves [path_lower, path_upper], in
+    the constraints' own units (0.0 for a system without path constraints); NaN where g is not finite."""
+    if not system.n_path:
+        return 0.0
+    return float(_path_violation_fn(system)(jnp.asarray(times), jnp.asarray(states), jnp.asarray(controls), params))
+
+
 @functools.lru_cache(maxsize=256)
 def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
     """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object."""
@@ -152,5 +205,6 @@ def _solution(system: System, transcription: AbstractTranscription, solver, nlp:
         status=res.status, solver_code=int(res.solver_code), message=res.message, iterations=int(res.iterations),
         constraint_violation=float(res.constraint_violation), compile_seconds=float(res.compile_seconds),
         solve_seconds=float(res.solve_seconds), error_estimate=error.value, interval_errors=error.intervals,
-        intervals=transcription.grid_intervals,
+        intervals=transcription.grid_intervals, final_time=float(times[-1]),
+        path_violation=path_violation(system, times, states, controls, data.params),
     )

@@ -24,7 +24,8 @@ pass), and where it diverges outright the interval's error is +inf (a step far t
 splits it first); NaN is kept for a trajectory that is itself not finite. The intervals need not be equal: each is
 integrated over its own [t_k, t_{k+1}], so a non-uniform grid (a transcription's ``grid``) is measured the same way.
 Multiple shooting's node variables are the end states of their intervals, so an unconverged continuity
-defect shows up here too.
+defect shows up here too. The times are physical (``unravel``'s): with a free final time each interval is
+integrated over its length in t at the solved T, so the estimate is that of the dynamics the user wrote.
 
 References:
     J. T. Betts, "Practical Methods for Optimal Control and Estimation Using Nonlinear Programming", 2nd ed.,

@@ -20,8 +20,8 @@ import numpy as np
 
 from ..integrators import AbstractIntegrator
 
-__all__ = ["Grid", "check_grid", "column", "grid_argument", "node_times", "rollout_on", "rollout_with_cost_on",
-           "weighted_sum"]
+__all__ = ["Grid", "check_grid", "column", "free_node_times", "grid_argument", "node_times", "rollout_on",
+           "rollout_with_cost_on", "weighted_sum"]
 
 Grid = tuple[float, ...]
 
@@ -74,6 +74,19 @@ def node_times(grid: Grid | None, intervals: int, horizon: float) -> tuple[np.nd
         return np.linspace(0.0, T, intervals + 1), T / intervals
     times = T * np.asarray(grid, dtype=np.float64)
     return times, np.diff(times)
+
+
+def free_node_times(positions: np.ndarray, T: Any) -> tuple[Any, Any]:
+    """Node times and steps when the final time T is a decision variable (traced): t_k = T s_k and the (N,) steps
+    h_k = T (s_{k+1} - s_k).
+
+    This is the time scaling t = T tau of a free final time: one step h_k of x' = f(x, u, t) is the step
+    s_{k+1} - s_k in tau of dx/dtau = T f(x, u, T tau), and h_k L_k is (s_{k+1} - s_k) T L_k, so every formula of a
+    transcription stays as written, with T inside its times and steps. The steps are an array even on the uniform
+    grid, so callers take their grid branch (``weighted_sum``, ``column``, ``rollout_on``).
+    """
+    s = np.asarray(positions, dtype=np.float64)
+    return T * jnp.asarray(s), T * jnp.asarray(np.diff(s))
 
 
 def grid_argument(nodes: int | Sequence[float]) -> tuple[int, Grid | None]:

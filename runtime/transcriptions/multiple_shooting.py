@@ -14,15 +14,18 @@ from ..nlp import NLP
 from ..system import System
 from ._common import (
     control_scale,
+    final_time_variable,
     final_value_rows,
     guess_controls,
     guess_states,
     node_state_bounds,
+    path_bounds,
+    path_rows,
     sparsity,
     state_scale,
 )
-from .base import AbstractTranscription
-from .grid import Grid, check_grid, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .base import AbstractTranscription, sample_final_time
+from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
 
 __all__ = ["MultipleShooting"]
 
@@ -37,13 +40,22 @@ class MultipleShooting(AbstractTranscription):
     parametrisation is the same as single shooting with N intervals and the two have the same optimum when they
     share an integrator. On interval j the integrator runs S steps from X_j, giving x_end,j, and
 
-        minimise    phi(X_M) + sum_j C_j,          C_j = int over interval j of L dt (extra state, same integrator)
+        minimise    phi(X_M, T) + sum_j C_j,       C_j = int over interval j of L dt (extra state, same integrator)
         subject to  (x_end,j - X_{j+1}) / s = 0    j = 0..M-1   (continuity defects, divided by the state scale s)
                     X_M,i = x_final,i               for every state with a required final value
+                    g_lo <= g(x_k, u_k, t_k) <= g_hi   k = 0..N  (path constraints, scaled; x_k from the rollouts)
                     x_lower <= X_j <= x_upper,  u_lower <= u_k <= u_upper   (bounds on every node)
+                    T_lower <= T <= T_upper   (a free final time)
 
-    Layout of z: ``[X_1..X_M (M n), u_0..u_N ((N + 1) m)]``. The constraint Jacobian is block-banded: defect j
-    depends densely on X_j and on the S + 1 controls of interval j, and only diagonally on X_{j+1}.
+    Path constraints hold at every control node: at a shooting node the node variable X_j, between them the state
+    the interval's rollout reaches (so row k depends on its interval's start X_j and the controls up to u_k only).
+
+    A free final time (``system.free_horizon``) is the last entry of z; the nodes are t_k = T s_k and the steps
+    T (s_{k+1} - s_k) (``grid.free_node_times``, the time scaling to tau in [0, 1]), phi is evaluated at T.
+
+    Layout of z: ``[X_1..X_M (M n), u_0..u_N ((N + 1) m), T (free final time only)]``. The constraint Jacobian is
+    block-banded: defect j depends densely on X_j and on the S + 1 controls of interval j, and only diagonally on
+    X_{j+1}; the column of a free T is dense in the defect and path rows.
 
     Attributes:
         intervals: M, the number of shooting intervals.
@@ -120,29 +132,39 @@ class MultipleShooting(AbstractTranscription):
         M, S = self.intervals, self.steps_per_interval
         N = M * S
         n, m = system.n_states, system.n_controls
-        T = float(system.horizon)
-        times, h = node_times(self.grid, N, T)
+        T_fixed = float(system.horizon)
+        times, h = node_times(self.grid, N, T_fixed)
+        positions = self.positions()
+        free = system.free_horizon
         shooting_times = times[::S]  # shooting nodes t_0..t_M
         window = np.arange(M)[:, None] * S + np.arange(S + 1)[None, :]  # control nodes of each interval, (M, S+1)
-        # Each interval's rollout starts from its time (uniform grid: t_j and the step h, as always) or steps through
-        # its own S + 1 nodes (a grid).
-        when = shooting_times[:-1] if self.grid is None else times[window]
         arrays = system.arrays()
         fixed, final = final_value_rows(system)
         sx, su = state_scale(system), control_scale(system)
+        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
         integrator = self.integrator
-        nX = M * n
+        nX, nU = M * n, (N + 1) * m
+        uniform = self.grid is None and not free
+
+        def clock(z):
+            """(T, node times, each interval's start or nodes): constants, or from the decision T."""
+            if free:
+                ts = free_node_times(positions, z[-1])[0]
+                return z[-1], ts, ts[window]
+            # Each interval's rollout starts from its time (uniform grid: t_j and the step h, as always) or steps
+            # through its own S + 1 nodes (a grid).
+            return T_fixed, times, jnp.asarray(shooting_times[:-1] if self.grid is None else times[window])
 
         def split(z):
-            return jnp.reshape(z[:nX], (M, n)), jnp.reshape(z[nX:], (N + 1, m))
+            return jnp.reshape(z[:nX], (M, n)), jnp.reshape(z[nX : nX + nU], (N + 1, m))
 
         def run(f, x, ts, u):
-            if self.grid is None:
+            if uniform:
                 return rollout(integrator, f, x, ts, h, u)
             return rollout_on(integrator, f, x, ts, u)
 
         def run_with_cost(f, L, x, ts, u):
-            if self.grid is None:
+            if uniform:
                 return rollout_with_cost(integrator, f, L, x, ts, h, u)
             return rollout_with_cost_on(integrator, f, L, x, ts, u)
 
@@ -156,16 +178,24 @@ class MultipleShooting(AbstractTranscription):
             starts = jnp.concatenate([jnp.asarray(data.x0)[None], X[:-1]], axis=0)
             return X, U, starts, U[window]
 
-        def constraint_rows(X, ends):
-            return jnp.concatenate([((ends - X) / sx).ravel(), X[-1, fixed] - final])
+        def node_states(X, xs):
+            # Each interval's own start is the node variable; its end is dropped for the next node (any defect
+            # shows as a jump there, not hidden by overwriting the node).
+            return jnp.concatenate([jnp.reshape(xs[:, :S], (N, n)), X[-1:]], axis=0)
+
+        def constraint_rows(X, U, xs, ts, params):
+            return jnp.concatenate([((xs[:, -1] - X) / sx).ravel(), X[-1, fixed] - final,
+                                    path_rows(system, params, node_states(X, xs), U, ts)])
 
         def objective_and_constraints(z, data):
             params = data.params
             f, L = fields(params)
-            X, _, starts, Uw = starts_and_windows(z, data)
+            T, ts, when = clock(z)
+            X, U, starts, Uw = starts_and_windows(z, data)
             shoot = lambda x, t, u: run_with_cost(f, L, x, t, u)  # noqa: E731
-            xs, costs = jax.vmap(shoot)(starts, jnp.asarray(when), Uw)
-            return jnp.sum(costs[:, -1]) + system.terminal_cost(X[-1], T, params), constraint_rows(X, xs[:, -1])
+            xs, costs = jax.vmap(shoot)(starts, when, Uw)
+            return (jnp.sum(costs[:, -1]) + system.terminal_cost(X[-1], T, params),
+                    constraint_rows(X, U, xs, ts, params))
 
         def objective(z, data):
             return objective_and_constraints(z, data)[0]
@@ -173,54 +203,65 @@ class MultipleShooting(AbstractTranscription):
         def constraints(z, data):
             # Without the cost state: the cheaper rollout when only the rows are wanted.
             f, _ = fields(data.params)
-            X, _, starts, Uw = starts_and_windows(z, data)
-            shoot = lambda x, t, u: run(f, x, t, u)[-1]  # noqa: E731
-            return constraint_rows(X, jax.vmap(shoot)(starts, jnp.asarray(when), Uw))
+            _, ts, when = clock(z)
+            X, U, starts, Uw = starts_and_windows(z, data)
+            xs = jax.vmap(lambda x, t, u: run(f, x, t, u))(starts, when, Uw)
+            return constraint_rows(X, U, xs, ts, data.params)
 
         def unravel(z, data):
             f, _ = fields(data.params)
+            _, ts, when = clock(z)
             X, U, starts, Uw = starts_and_windows(z, data)
-            shoot = lambda x, t, u: run(f, x, t, u)  # noqa: E731
-            xs = jax.vmap(shoot)(starts, jnp.asarray(when), Uw)  # (M, S+1, n)
-            # Each interval's own start is the node variable; its end is dropped for the next node (any defect shows
-            # as a jump there, not hidden by overwriting the node).
-            states = jnp.concatenate([jnp.reshape(xs[:, :S], (N, n)), X[-1:]], axis=0)
-            return jnp.asarray(times), states, U
+            xs = jax.vmap(lambda x, t, u: run(f, x, t, u))(starts, when, Uw)  # (M, S+1, n)
+            return jnp.asarray(ts), node_states(X, xs), U
 
         def initial_guess(data):
             X = guess_states(system, data.x0, shooting_times[1:])
-            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel())])
+            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
+                                    jnp.asarray(T_guess)])
 
+        n_path, nz = system.n_path, nX + nU + T_lo.size
+        T_col = np.arange(nX + nU, nz)  # empty for a fixed horizon
         blocks = []
         for j in range(M):
             rows = j * n + np.arange(n)
             if j > 0:
                 blocks.append((rows, (j - 1) * n + np.arange(n), False))
             blocks.append((rows, j * n + np.arange(n), True))
-            blocks.append((rows, nX + (window[j][:, None] * m + np.arange(m)).ravel(), False))
+            blocks.append((rows, np.concatenate([nX + (window[j][:, None] * m + np.arange(m)).ravel(), T_col]), False))
         for r, i in enumerate(fixed):
             blocks.append((np.array([M * n + r]), np.array([(M - 1) * n + i]), True))
+        first_path = M * n + fixed.size
+        for k in range(N + 1):
+            j, i = min(k // S, M - 1), k - min(k // S, M - 1) * S  # node k is step i of interval j (N: j = M-1, S)
+            rows = first_path + k * n_path + np.arange(n_path)
+            start = [] if j == 0 else [(j - 1) * n + np.arange(n)]  # X_j (x0 is not a decision)
+            end = [(M - 1) * n + np.arange(n)] if k == N else []  # the last node is X_M itself
+            us = nX + (window[j][: i + 1, None] * m + np.arange(m)).ravel()
+            blocks.append((rows, np.concatenate(start + end + [us, T_col]), False))
 
         x_lo, x_hi = node_state_bounds(system, M)
+        p_lo, p_hi = path_bounds(system, N + 1)
         return NLP(
             objective=objective,
             constraints=constraints,
-            c_lower=np.zeros(M * n + fixed.size),
-            c_upper=np.zeros(M * n + fixed.size),
-            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1)]),
-            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1)]),
+            c_lower=np.concatenate([np.zeros(M * n + fixed.size), p_lo]),
+            c_upper=np.concatenate([np.zeros(M * n + fixed.size), p_hi]),
+            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1), T_lo]),
+            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
             initial_guess=initial_guess,
             unravel=unravel,
             jacobian_sparsity=sparsity(blocks),
-            z_scale=np.concatenate([np.tile(sx, M), np.tile(su, N + 1)]),
+            z_scale=np.concatenate([np.tile(sx, M), np.tile(su, N + 1), T_scale]),
             name=f"{system.name}/multiple_shooting(M={M}, S={S}, {type(integrator).__name__}"
-                 f"{'' if self.grid is None else ', graded'})",
+                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''})",
             objective_and_constraints=objective_and_constraints,
         )
 
-    def sample(self, system, states, controls):
+    def sample(self, system, states, controls, final_time=None):
         S = self.steps_per_interval
-        times, _ = node_times(self.grid, self.intervals * S, system.horizon)
+        T = sample_final_time(system, final_time)
+        times, _ = node_times(self.grid, self.intervals * S, T)
         X = np.asarray(states(times[S::S]), dtype=np.float64)
         U = np.asarray(controls(times), dtype=np.float64)
-        return np.concatenate([X.ravel(), U.ravel()])
+        return np.concatenate([X.ravel(), U.ravel()] + ([np.array([T])] if system.free_horizon else []))

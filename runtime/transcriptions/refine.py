@@ -168,7 +168,9 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
             else:
                 parent_errors, pieces = np.repeat(mesh_errors, counts), np.repeat(counts, counts)
                 tr = tr.with_grid(tuple(positions))
-                z0 = tr.sample(system, _interpolant(sol.times, sol.states), _interpolant(sol.times, sol.controls))
+                # The grid is in tau = t / T: a free final time keeps the solved T, and the new nodes are T s_k.
+                z0 = tr.sample(system, _interpolant(sol.times, sol.states), _interpolant(sol.times, sol.controls),
+                               final_time=sol.final_time if system.free_horizon else None)
                 continue
         break
     refinement = {"met": met, "tolerance": float(config.tolerance), "reason": reason, "history": history}

@@ -11,9 +11,18 @@ import numpy as np
 from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost
 from ..nlp import NLP
 from ..system import System
-from ._common import bounded_free_states, control_scale, final_value_rows, guess_controls, state_scale
-from .base import AbstractTranscription
-from .grid import Grid, check_grid, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from ._common import (
+    bounded_free_states,
+    control_scale,
+    final_time_variable,
+    final_value_rows,
+    guess_controls,
+    path_bounds,
+    path_rows,
+    state_scale,
+)
+from .base import AbstractTranscription, sample_final_time
+from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
 
 __all__ = ["SingleShooting"]
 
@@ -26,15 +35,21 @@ class SingleShooting(AbstractTranscription):
     between. The states are the rollout x_{k+1} = Phi_{h_k}(x_k, u_k, u_{k+1}) of ``integrator`` from
     x_0 = data.x0, one step per control interval (h_k = t_{k+1} - t_k), and
 
-        minimise    phi(x_N) + C_N,        C = int L dt integrated as an extra state by the same integrator
+        minimise    phi(x_N, T) + C_N,     C = int L dt integrated as an extra state by the same integrator
         subject to  x_N,i = x_final,i              for every state with a required final value,
                     lo_i <= x_N,i <= hi_i           for every other state with a finite bound (if enforced),
-                    u_lower <= u_k <= u_upper.
+                    g_lo <= g(x_k, u_k, t_k) <= g_hi   k = 0..N  (path constraints, states from the rollout),
+                    u_lower <= u_k <= u_upper,      T_lower <= T <= T_upper   (a free final time).
 
     State bounds are enforced at the shooting nodes, which for single shooting is the final node only, exactly as
-    in the published setting (Bacteria's x(T) <= 10 and Tumour's budget y(T) <= A rely on it). Bound rows are
-    divided by the state's nominal scale; required final values are not. The constraint Jacobian is dense (every
+    in the published setting (Bacteria's x(T) <= 10 and Tumour's budget y(T) <= A rely on it). Path constraints
+    (schema 2) hold at every control node, with the states the rollout reaches there. Bound and path rows are
+    divided by their nominal scale; required final values are not. The constraint Jacobian is dense (every
     x_N depends on every control), so ``jacobian_sparsity`` is None.
+
+    A free final time (``system.free_horizon``) is the last entry of z: the nodes are t_k = T s_k and the steps
+    T (s_{k+1} - s_k) (``grid.free_node_times``: the time scaling to tau in [0, 1]), and phi is evaluated at T.
+    Layout of z: ``[u_0..u_N ((N + 1) m), T (free final time only)]``.
 
     Attributes:
         controls: N, the number of control intervals (N + 1 control nodes).
@@ -84,41 +99,55 @@ class SingleShooting(AbstractTranscription):
 
     def transcribe(self, system: System) -> NLP:
         N, m = self.controls, system.n_controls
-        T = float(system.horizon)
-        times, h = node_times(self.grid, N, T)
+        T_fixed = float(system.horizon)
+        times, h = node_times(self.grid, N, T_fixed)
+        positions = self.positions()
+        free = system.free_horizon
         arrays = system.arrays()
         fixed, final = final_value_rows(system)
         bounded = bounded_free_states(system) if self.enforce_final_state_bounds else np.zeros(0, dtype=np.int64)
         sx = state_scale(system)
+        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
         integrator = self.integrator
+        nU = (N + 1) * m
 
-        # The uniform grid keeps the rollouts it always had (t_k = k h); a grid steps through its own nodes.
-        def run(f, x0, us, checkpoint=False):
-            if self.grid is None:
+        def clock(z):
+            """(T, node times): the constants of a fixed horizon, or from the decision T (see grid.free_node_times)."""
+            if free:
+                return z[-1], free_node_times(positions, z[-1])[0]
+            return T_fixed, times
+
+        # The uniform fixed grid keeps the rollouts it always had (t_k = k h); any other steps through its nodes.
+        def run(f, x0, us, ts, checkpoint=False):
+            if self.grid is None and not free:
                 return rollout(integrator, f, x0, 0.0, h, us, checkpoint)
-            return rollout_on(integrator, f, x0, times, us, checkpoint)
+            return rollout_on(integrator, f, x0, ts, us, checkpoint)
 
-        def run_with_cost(f, L, x0, us, checkpoint=False):
-            if self.grid is None:
+        def run_with_cost(f, L, x0, us, ts, checkpoint=False):
+            if self.grid is None and not free:
                 return rollout_with_cost(integrator, f, L, x0, 0.0, h, us, checkpoint)
-            return rollout_with_cost_on(integrator, f, L, x0, times, us, checkpoint)
+            return rollout_with_cost_on(integrator, f, L, x0, ts, us, checkpoint)
 
         def controls_of(z):
-            return jnp.reshape(z, (N + 1, m))
+            return jnp.reshape(z[:nU], (N + 1, m))
 
         def fields(params):
             f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
             L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
             return f, L
 
-        def final_rows(xT):
-            return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
+        def rows(xs, us, ts, params):
+            xT = xs[-1]
+            return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded],
+                                    path_rows(system, params, xs, us, ts)])
 
         def objective_and_constraints(z, data):
             params = data.params
             f, L = fields(params)
-            xs, cost = run_with_cost(f, L, data.x0, controls_of(z), self.checkpoint)
-            return cost[-1] + system.terminal_cost(xs[-1], T, params), final_rows(xs[-1])
+            T, ts = clock(z)
+            us = controls_of(z)
+            xs, cost = run_with_cost(f, L, data.x0, us, ts, self.checkpoint)
+            return cost[-1] + system.terminal_cost(xs[-1], T, params), rows(xs, us, ts, params)
 
         def objective(z, data):
             return objective_and_constraints(z, data)[0]
@@ -126,35 +155,41 @@ class SingleShooting(AbstractTranscription):
         def constraints(z, data):
             # Without the cost state: the cheaper rollout when only the rows are wanted.
             f, _ = fields(data.params)
-            return final_rows(run(f, data.x0, controls_of(z), self.checkpoint)[-1])
+            _, ts = clock(z)
+            us = controls_of(z)
+            return rows(run(f, data.x0, us, ts, self.checkpoint), us, ts, data.params)
 
         def unravel(z, data):
             f, _ = fields(data.params)
+            _, ts = clock(z)
             us = controls_of(z)
-            return jnp.asarray(times), run(f, data.x0, us), us
+            return jnp.asarray(ts), run(f, data.x0, us, ts), us
 
         def initial_guess(data):
             del data
-            return jnp.asarray(guess_controls(system, N + 1).ravel())
+            return jnp.asarray(np.concatenate([guess_controls(system, N + 1).ravel(), T_guess]))
 
-        n_rows = fixed.size + bounded.size
+        p_lo, p_hi = path_bounds(system, N + 1)
+        n_rows = fixed.size + bounded.size + p_lo.size
         return NLP(
             objective=objective,
             constraints=constraints if n_rows else None,
-            c_lower=np.concatenate([np.zeros(fixed.size), arrays["x_lower"][bounded] / sx[bounded]]),
-            c_upper=np.concatenate([np.zeros(fixed.size), arrays["x_upper"][bounded] / sx[bounded]]),
-            z_lower=np.tile(arrays["u_lower"], N + 1),
-            z_upper=np.tile(arrays["u_upper"], N + 1),
+            c_lower=np.concatenate([np.zeros(fixed.size), arrays["x_lower"][bounded] / sx[bounded], p_lo]),
+            c_upper=np.concatenate([np.zeros(fixed.size), arrays["x_upper"][bounded] / sx[bounded], p_hi]),
+            z_lower=np.concatenate([np.tile(arrays["u_lower"], N + 1), T_lo]),
+            z_upper=np.concatenate([np.tile(arrays["u_upper"], N + 1), T_hi]),
             initial_guess=initial_guess,
             unravel=unravel,
             jacobian_sparsity=None,
-            z_scale=np.tile(control_scale(system), N + 1),
+            z_scale=np.concatenate([np.tile(control_scale(system), N + 1), T_scale]),
             name=f"{system.name}/single_shooting(N={N}, {type(integrator).__name__}"
-                 f"{'' if self.grid is None else ', graded'})",
+                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''})",
             objective_and_constraints=objective_and_constraints if n_rows else None,
         )
 
-    def sample(self, system, states, controls):
+    def sample(self, system, states, controls, final_time=None):
         del states
-        times, _ = node_times(self.grid, self.controls, system.horizon)
-        return np.asarray(controls(times), dtype=np.float64).reshape(-1)
+        T = sample_final_time(system, final_time)
+        times, _ = node_times(self.grid, self.controls, T)
+        U = np.asarray(controls(times), dtype=np.float64).reshape(-1)
+        return np.concatenate([U, [T]]) if system.free_horizon else U

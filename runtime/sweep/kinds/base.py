@@ -11,9 +11,9 @@ import dataclasses
 import json
 from typing import Any, ClassVar, Mapping
 
-from ...system import System
+from ...system import System, UnsupportedFeature
 
-__all__ = ["AbstractKind", "Outcome", "RESERVED"]
+__all__ = ["AbstractKind", "Outcome", "RESERVED", "refuse_unsupported"]
 
 # The task's own fields: a kind's ``Outcome.fields`` may not use these names (the run fails loudly if it does).
 RESERVED = frozenset({"index", "system", "method", "kind", "seed", "settings", "status", "message", "error_type",
@@ -69,3 +69,12 @@ class AbstractKind(abc.ABC):
     def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:
         """Run once. ``settings`` are as :meth:`check` returned them; everything random derives from ``seed``.
         An exception is fine: the task records it as an error."""
+
+
+def refuse_unsupported(system: System, what: str) -> None:
+    """``ValueError`` (the sweep's word for a task that cannot run) if ``system`` has path constraints or a free final
+    time that ``what`` would ignore (:meth:`~myriad.runtime.system.System.require_schema1_features`)."""
+    try:
+        system.require_schema1_features(what)
+    except UnsupportedFeature as exc:
+        raise ValueError(str(exc)) from None

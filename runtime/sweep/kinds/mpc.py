@@ -15,7 +15,7 @@ import math
 from typing import Any, ClassVar
 
 from ...system import System
-from .base import AbstractKind, Outcome
+from .base import AbstractKind, Outcome, refuse_unsupported
 
 __all__ = ["Mpc", "MpcSettings"]
 
@@ -65,6 +65,9 @@ class Mpc(AbstractKind):
     name: ClassVar[str] = "mpc"
     Settings: ClassVar[type] = MpcSettings
     columns: ClassVar[tuple[str, ...]] = ("cost", "normalized_score", "relative_gap", "failures")
+
+    def check_system(self, system: System, settings: dict[str, Any]) -> None:
+        refuse_unsupported(system, "mpc (the RL environment's fixed-horizon episodes)")
 
     def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:
         from ...rl.mpc import MPC, mismatched_params

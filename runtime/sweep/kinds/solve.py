@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ...system import System
-from .base import AbstractKind, Outcome
+from .base import AbstractKind, Outcome, refuse_unsupported
 
 __all__ = ["Solve", "SolveSettings"]
 
@@ -113,6 +113,11 @@ class Solve(AbstractKind):
     name: ClassVar[str] = "solve"
     Settings: ClassVar[type] = SolveSettings
     columns: ClassVar[tuple[str, ...]] = ("cost", "max_defect", "iterations", "solver_status", "simulated_cost")
+
+    def check_system(self, system: System, settings: dict[str, Any]) -> None:
+        method, _ = build(SolveSettings(**settings))
+        if not method.uses_solver:  # the indirect methods; every direct transcription enforces both
+            refuse_unsupported(system, f"solve with {method.label}")
 
     def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:
         from ...solve import solve

@@ -11,7 +11,7 @@ import dataclasses
 from typing import Any, ClassVar
 
 from ...system import System
-from .base import AbstractKind, Outcome
+from .base import AbstractKind, Outcome, refuse_unsupported
 
 __all__ = ["Sysid", "SysidSettings"]
 
@@ -72,6 +72,7 @@ class Sysid(AbstractKind):
     columns: ClassVar[tuple[str, ...]] = ("achieved_cost", "optimal_cost", "relative_gap", "fit_status")
 
     def check_system(self, system: System, settings: dict[str, Any]) -> None:
+        refuse_unsupported(system, "sysid (its datasets and plans)")
         if settings["model"] == "parametric" and not system.learnable:
             raise ValueError(f"sysid: {system.name} declares no learnable parameters; use model=node")
 
