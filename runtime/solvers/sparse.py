@@ -118,16 +118,29 @@ class HessianColouring:
     The colouring is done on the symmetric completion of the pattern (so ``(rows, cols)`` may be the lower triangle
     only): columns of one colour share no row of the full matrix, and each requested entry is read off directly.
     The ``K`` colour seeds are padded to whole batches of ``batch`` rows for :func:`hvp_batch_fn`'s program.
+
+    A *dense* variable (a free final time multiplies every step, so its row and column touch everything) would
+    conflict with every other column and force one colour per variable. Such a variable gets a seed of its own,
+    ``H e_d`` is its whole column, entries in its row are read by symmetry from that column, and the rest is
+    coloured as if it were absent: ``K`` stays about the bandwidth plus the number of dense variables.
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int, batch: int):
-        colours = color_columns(np.concatenate([rows, cols]), np.concatenate([cols, rows]), (n, n))
+        both_r, both_c = np.concatenate([rows, cols]), np.concatenate([cols, rows])
+        counts = np.bincount(both_c[both_r != both_c], minlength=n)
+        dense = counts > max(32, n // 4)
+        keep = ~dense[both_r] & ~dense[both_c]
+        colours = color_columns(both_r[keep], both_c[keep], (n, n))
+        base = int(colours[~dense].max()) + 1 if (~dense).any() else 0
+        colours[dense] = base + np.arange(int(dense.sum()))
         seeds = _seeds(colours)
         self.n_colours = seeds.shape[0]
         padded = np.zeros((-(-self.n_colours // batch) * batch, n))
         padded[: self.n_colours] = seeds
         self.seed_batches = [padded[i : i + batch] for i in range(0, padded.shape[0], batch)]
-        self._take = (colours[cols], rows)
+        # (colour, row) of each requested entry; in a dense variable's row, (H e_r)[c] = H[r, c] by symmetry.
+        by_row = dense[rows] & ~dense[cols]
+        self._take = (np.where(by_row, colours[rows], colours[cols]), np.where(by_row, cols, rows))
 
     def values(self, hvps: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """The requested entries, given ``hvps(seeds (batch, n)) -> (batch, n)`` at the point of interest."""

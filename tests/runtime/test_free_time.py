@@ -150,6 +150,30 @@ def test_minimum_time_double_integrator_trapezoidal_with_mesh_refinement(min_tim
     assert np.all(np.abs(sol.simulated_defect) < 1e-5)  # re-simulated in physical time on [0, T]
 
 
+def test_hessian_colouring_gives_the_final_time_its_own_seed(min_time):
+    # T multiplies every step: its row and column of the Lagrangian's Hessian are dense. Coloured as an ordinary
+    # column it conflicts with everything (one product per variable); with a seed of its own the rest stays banded.
+    from myriad.runtime.solvers.sparse import HessianColouring, hvp_batch_fn
+
+    nlp = transcribe(min_time, Trapezoidal(intervals=60))
+    data = default_data(min_time)
+    z = np.asarray(nlp.initial_guess(data)) + 0.01 * np.random.default_rng(0).standard_normal(nlp.n_variables)
+    lam = np.random.default_rng(1).standard_normal(nlp.n_constraints)
+
+    def lagrangian(z_, lam_):
+        return nlp.objective(z_, data) + lam_ @ nlp.constraints(z_, data)
+
+    dense_h = np.asarray(jax.jit(jax.hessian(lagrangian))(z, lam))
+    n = nlp.n_variables
+    assert np.count_nonzero(dense_h[-1, :-1]) > n // 2  # the final time's row is dense
+    rows, cols = np.nonzero(np.tril(np.abs(dense_h) > 0) | np.eye(n, dtype=bool))
+    colouring = HessianColouring(rows, cols, n, batch=8)
+    hvps = jax.jit(hvp_batch_fn(jax.grad(lagrangian)))
+    values = colouring.values(lambda seeds: hvps(z, seeds, lam))
+    np.testing.assert_allclose(values, dense_h[rows, cols], rtol=1e-12, atol=1e-12)
+    assert colouring.n_colours <= 12  # measured 202 colours for 302 variables before T had its own seed
+
+
 def test_no_recompilation_for_new_data_with_free_time_and_path_constraints():
     system = load(f"{SCHEMA2}/keep_out_zone.yaml")
     method = Trapezoidal(intervals=12)
