@@ -8,6 +8,8 @@ from .base import AbstractNLPSolver as AbstractNLPSolver
 from .base import constraint_violation as constraint_violation
 from .extragradient import Extragradient as Extragradient
 from .extragradient import ExtragradientSolution as ExtragradientSolution
+from .interior_point import InteriorPoint as InteriorPoint
+from .interior_point import InteriorPointSolution as InteriorPointSolution
 from .ipopt import Ipopt as Ipopt
 from .pure import AbstractPureSolver as AbstractPureSolver
 from .slsqp import SLSQP as SLSQP
@@ -16,6 +18,7 @@ SOLVERS: dict[str, type[AbstractNLPSolver]] = {
     "ipopt": Ipopt,
     "slsqp": SLSQP,
     "extragradient": Extragradient,
+    "interior_point": InteriorPoint,
 }
 
 __all__ = [
@@ -23,6 +26,8 @@ __all__ = [
     "AbstractPureSolver",
     "Extragradient",
     "ExtragradientSolution",
+    "InteriorPoint",
+    "InteriorPointSolution",
     "Ipopt",
     "SLSQP",
     "SOLVERS",

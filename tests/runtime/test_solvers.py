@@ -19,7 +19,15 @@ import numpy as np
 import pytest
 
 from myriad.runtime.nlp import NLP
-from myriad.runtime.solvers import SLSQP, SOLVERS, AbstractNLPSolver, Extragradient, Ipopt, constraint_violation
+from myriad.runtime.solvers import (
+    SLSQP,
+    SOLVERS,
+    AbstractNLPSolver,
+    Extragradient,
+    InteriorPoint,
+    Ipopt,
+    constraint_violation,
+)
 from myriad.runtime.solvers.ipopt import judge
 from myriad.runtime.solvers.sparse import HessianColouring, compressed_jacobian_fn, hvp_batch_fn
 from myriad.runtime.status import Status
@@ -167,9 +175,11 @@ CASES = make_cases()
 # The configuration each solver is tested with. SLSQP's tol bounds the objective change, and z converges only like
 # its square root where the problem is ill-conditioned: the default tol=1e-9 leaves z 3.2e-6 off on eq_qp and 1.4e-5 on
 # Rosenbrock; 1e-11 gives <= 1e-7 on every case (1e-12 is past round-off: the disc then ends in exit mode 8).
-TESTED: dict[str, AbstractNLPSolver] = {"ipopt": Ipopt(), "slsqp": SLSQP(tol=1e-11), "extragradient": Extragradient()}
+TESTED: dict[str, AbstractNLPSolver] = {"ipopt": Ipopt(), "slsqp": SLSQP(tol=1e-11), "extragradient": Extragradient(),
+                                        "interior_point": InteriorPoint()}
 # (z, F, multipliers) tolerances per solver.
-TOLERANCES = {"ipopt": (1e-6, 1e-6, 1e-5), "slsqp": (1e-6, 1e-6, 1e-5), "extragradient": (1e-5, 1e-5, 1e-4)}
+TOLERANCES = {"ipopt": (1e-6, 1e-6, 1e-5), "slsqp": (1e-6, 1e-6, 1e-5), "extragradient": (1e-5, 1e-5, 1e-4),
+              "interior_point": (1e-6, 1e-6, 1e-5)}
 
 
 @functools.cache

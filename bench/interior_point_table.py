@@ -1,0 +1,68 @@
+"""InteriorPoint (pure JAX) against IPOPT on the 18 systems at the published setting, or at another transcription.
+
+For each system: both solvers' cost, their relative difference, the largest difference of the required final values
+(the defects ``x_N - x_final``), iterations, compile seconds and the warm solve time (the minimum over ``--repeat``
+solves of the same NLP and data after the first; for InteriorPoint one dispatch of the compiled ``while_loop``).
+
+Usage: python bench/interior_point_table.py [--systems NAME ...] [--transcription published|multiple_shooting|
+       trapezoidal|hermite_simpson] [--repeat R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+
+os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)
+
+from myriad.runtime import load, solve  # noqa: E402
+from myriad.runtime.bench import ALTERNATIVES, PUBLISHED_SETTING  # noqa: E402
+from myriad.runtime.solvers import InteriorPoint, Ipopt  # noqa: E402
+from myriad.runtime.systems import NAMES  # noqa: E402
+
+SETTINGS = {"published": PUBLISHED_SETTING, "multiple_shooting": ALTERNATIVES[0], "trapezoidal": ALTERNATIVES[1],
+            "hermite_simpson": ALTERNATIVES[2]}
+
+
+def warm_seconds(system, transcription, solver, repeat: int) -> float:
+    return min(solve(system, transcription, solver, resimulate=False).solve_seconds for _ in range(repeat))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--systems", nargs="*", default=sorted(NAMES))
+    parser.add_argument("--transcription", choices=list(SETTINGS), default="published")
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    transcription = SETTINGS[args.transcription]
+    print(f"{args.transcription}: {transcription}; {os.cpu_count()} CPUs")
+    print(f"{'system':18s} {'IPOPT cost':>16s} {'IP cost':>16s} {'rel diff':>9s} {'final diff':>10s} "
+          f"{'it':>7s} {'status':>14s} {'compile s':>9s} {'IPOPT ms':>9s} {'IP ms':>8s} {'ratio':>6s}")
+    ratios, agree = [], 0
+    for name in args.systems:
+        system = load(name)
+        ref = solve(system, transcription, Ipopt(), resimulate=False)
+        ip = solve(system, transcription, InteriorPoint(), resimulate=False)
+        rel = abs(ip.cost - ref.cost) / max(abs(ref.cost), 1e-300)
+        final = max((abs(a - b) for a, b in zip(ip.defect, ref.defect)), default=0.0)
+        t_ref = warm_seconds(system, transcription, Ipopt(), args.repeat)
+        t_ip = warm_seconds(system, transcription, InteriorPoint(), args.repeat)
+        ratio = t_ip / t_ref
+        ratios.append(ratio)
+        ok = ref.converged and ip.converged and rel <= 1e-8 and final <= 1e-8
+        agree += ok
+        print(f"{name:18s} {ref.cost:16.10g} {ip.cost:16.10g} {rel:9.1e} {final:10.1e} "
+              f"{ref.iterations:3d}/{ip.iterations:<3d} {str(ip.status):>14s} {ip.compile_seconds:9.1f} "
+              f"{1e3 * t_ref:9.1f} {1e3 * t_ip:8.1f} {ratio:6.2f}{'' if ok else '  <- differs'}", flush=True)
+    print(f"agree (both converged, cost to 1e-8 relative, final values to 1e-8): {agree}/{len(args.systems)}; "
+          f"warm-time ratio InteriorPoint / IPOPT (myriad's cyipopt): median {statistics.median(ratios):.2f}, "
+          f"range {min(ratios):.2f} to {max(ratios):.2f}")
+
+
+if __name__ == "__main__":
+    main()

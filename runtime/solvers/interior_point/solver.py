@@ -1,0 +1,155 @@
+r"""The ``InteriorPoint`` configuration: validation, and the hooks of the pure tier (:class:`AbstractPureSolver`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, ClassVar, final
+
+import jax.numpy as jnp
+import numpy as np
+
+from ...nlp import NLP, NLPResult
+from ...status import Status
+from ..base import AbstractNLPSolver, CompiledFunction, ScaledProblem, cached, constraint_violation, initial_point
+from ..pure import AbstractPureSolver
+from .implicit import differentiable
+from .loop import InteriorPointSolution, make_solve_fn
+from .problem import Layout
+
+__all__ = ["InteriorPoint"]
+
+_MESSAGES = {
+    Status.CONVERGED: "converged: scaled optimality error below tol and violation below constr_viol_tol",
+    Status.ITERATION_LIMIT: "maximum number of iterations reached before convergence",
+    Status.NOT_FINITE: "a non-finite value (NaN or inf) in the objective, constraints or their derivatives",
+    Status.INFEASIBLE: "the line search could not decrease the merit at an infeasible point (no restoration phase): "
+                       "the problem looks locally infeasible",
+    Status.NOT_CONVERGED: "the line search or the inertia correction failed at a feasible point",
+}
+
+
+@final
+@dataclasses.dataclass(frozen=True)
+class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
+    r"""A primal-dual interior-point method with exact second derivatives, entirely in JAX (one ``lax.while_loop``).
+
+    After Wächter & Biegler (2006), the algorithm of IPOPT: inequality rows get slacks, bounds are handled by
+    logarithmic barriers, and the barrier problems
+
+    .. math::
+        \min_x\ \sigma F(w) - \mu \sum_j \big(\ln(x_j - x^l_j) + \ln(x^u_j - x_j)\big)
+        \quad\text{s.t.}\quad g(x) = 0,\qquad x = (w, s),
+
+    are solved by Newton steps on the primal-dual optimality conditions for a decreasing ``mu``. The Hessian of the
+    Lagrangian is exact (``jax.jacfwd`` of ``jax.grad``), the Newton system is factorised densely with inertia
+    correction (:mod:`.kkt`), steps obey the fraction-to-the-boundary rule and are globalised by a backtracking line
+    search on an exact-penalty merit function with a second-order correction (:mod:`.loop`, which also says why a
+    merit function rather than IPOPT's filter). Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`),
+    with IPOPT's gradient-based scaling of the objective and rows on top.
+
+    Statuses: ``CONVERGED`` (optimality error at most ``tol`` and the NLP's violation at most ``constr_viol_tol``);
+    ``ITERATION_LIMIT``; ``INFEASIBLE`` (the line search failed at an infeasible point: there is no restoration
+    phase, so this is an honest failure, not a proof of infeasibility); ``NOT_FINITE`` (a NaN or inf in a value or
+    derivative at an iterate; a non-finite *trial* point is only rejected by the line search); ``NOT_CONVERGED``
+    (line search or inertia correction failed at a feasible point). Only ``CONVERGED`` is a success.
+
+    Pure tier: :meth:`solve_fn` is the jit-compiled ``(data, z0) ->`` :class:`InteriorPointSolution`, compiled once per
+    NLP and shapes; :meth:`solve_batch` is its ``vmap`` (members that stop early are frozen; each keeps its status).
+    ``jax.grad`` of a function of its ``z``, ``objective`` or ``multipliers`` with respect to ``data`` works through
+    a ``jax.custom_vjp`` (implicit function theorem, :mod:`.implicit`), also under ``vmap``; a solve that did not
+    converge gives NaN cotangents, never a silent gradient. Forward mode (``jax.jvp``) is not supported.
+
+    Attributes:
+        tol: the scaled optimality error (IPOPT's ``tol``) at which the solve stops.
+        constr_viol_tol: the largest violation of the NLP's constraints a converged solve may have.
+        max_iter: the iteration limit.
+        second_order_correction: try one second-order correction when the full step is rejected.
+
+    References:
+        Wächter & Biegler (2006), On the implementation of an interior-point filter line-search algorithm for
+        large-scale nonlinear programming, Math. Programming 106. Nocedal & Wright (2006), Numerical Optimization,
+        chapter 19.
+    """
+
+    label: ClassVar[str] = "interior_point"
+
+    tol: float = 1e-8
+    constr_viol_tol: float = 1e-6
+    max_iter: int = 3000
+    second_order_correction: bool = True
+
+    def __post_init__(self):
+        if not self.tol > 0 or not self.constr_viol_tol > 0:
+            raise ValueError(f"InteriorPoint: tol ({self.tol}) and constr_viol_tol ({self.constr_viol_tol}) must "
+                             f"be positive")
+        if not isinstance(self.max_iter, int) or self.max_iter < 0:
+            raise ValueError(f"InteriorPoint: max_iter must be a non-negative int, got {self.max_iter!r}")
+
+    # ---- public API --------------------------------------------------------------------------------------------
+
+    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        return self._solve_single(nlp, data, z0)
+
+    # ---- the pure tier (see AbstractPureSolver) ----------------------------------------------------------------
+
+    def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
+        return self._compiled(nlp).raw
+
+    def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
+        return initial_point(nlp, data, z0)
+
+    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
+        return self._compiled(nlp).prepare_evaluation(z0, data)
+
+    def report(self, nlp: NLP, out: InteriorPointSolution, data: Any, compile_seconds: float,
+               solve_seconds: float) -> NLPResult:
+        """One member's NLPResult: objective and violation re-evaluated at ``z`` on the host; ``CONVERGED`` only if
+        the loop converged *and* the host's violation and objective agree (finite, within ``constr_viol_tol``)."""
+        fns = self._compiled(nlp)
+        z = np.asarray(out.z)
+        objective = float(fns.objective(z, data))
+        c = np.asarray(fns.constraints(z, data)) if fns.problem.n_constraints else None
+        violation = constraint_violation(nlp, z, c)
+        status = Status(int(out.status))
+        if status is Status.CONVERGED and not (np.isfinite(objective) and violation <= self.constr_viol_tol):
+            status = Status.NOT_CONVERGED
+        return NLPResult(
+            z=z,
+            objective=objective,
+            status=status,
+            solver_code=int(out.status),
+            message=_MESSAGES[status],
+            iterations=int(out.iterations),
+            constraint_violation=violation,
+            multipliers=np.asarray(out.multipliers) if fns.problem.n_constraints else None,
+            compile_seconds=compile_seconds,
+            solve_seconds=solve_seconds,
+        )
+
+    # ---- implementation ----------------------------------------------------------------------------------------
+
+    def _compiled(self, nlp: NLP) -> _Compiled:
+        return cached(nlp, ("interior_point", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
+
+
+class _Compiled:
+    """The pure (differentiable) solve and the report's objective and constraints, for one NLP and configuration."""
+
+    def __init__(self, problem: ScaledProblem, solver: InteriorPoint):
+        self.problem = problem
+        loop = make_solve_fn(Layout(problem), solver.tol, solver.constr_viol_tol, solver.max_iter,
+                             solver.second_order_correction)
+        self.raw = differentiable(loop, problem)
+        f, scale = problem.objective, jnp.asarray(problem.scale)
+        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
+        if problem.n_constraints:
+            c = problem.constraints
+            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
+
+    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
+        """Compile the objective and constraints used to report the result; returns the seconds spent."""
+        seconds = self.objective.compile(z, data)
+        if self.problem.n_constraints:
+            seconds += self.constraints.compile(z, data)
+        return seconds
