@@ -63,9 +63,9 @@ class Setting:
 
 
 SETTINGS = {
-    "alp_rider": Setting(stiff=True, note=(
+    "alp_rider": Setting(transcription="hermite_simpson", intervals=100, tolerance=1e-6, stiff=True, note=(
         "boundary layers of width ~0.01 at the junctions (cost weights 100 on |y|^2 and 0.01 on |u|^2): a uniform "
-        "grid of 400 intervals is too coarse (CasADi: 2132 at N = 400, 2042 at N = 2000)")),
+        "grid is too coarse (CasADi: 2132 at N = 400, 2042 at N = 2000); met with mesh refinement")),
     "hager": Setting(transcription="hermite_simpson", intervals=20, casadi_intervals=100),
     "hanging_chain": Setting(casadi_intervals=400),
     "hypersensitive": Setting(transcription="hermite_simpson", intervals=50, tolerance=1e-6, stiff=True, note=(
