@@ -19,6 +19,7 @@ from .solvers import Extragradient as Extragradient
 from .solvers import Ipopt as Ipopt
 from .system import OptimalControlUnavailable as OptimalControlUnavailable
 from .system import System as System
+from .system import UnsupportedFeature as UnsupportedFeature
 from .transcriptions import ForwardBackwardSweep as ForwardBackwardSweep
 from .transcriptions import HermiteSimpson as HermiteSimpson
 from .transcriptions import MultipleShooting as MultipleShooting
@@ -26,7 +27,7 @@ from .transcriptions import SingleShooting as SingleShooting
 from .transcriptions import Trapezoidal as Trapezoidal
 
 __all__ = [
-    "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable",
+    "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable", "UnsupportedFeature",
     "Euler", "Heun", "Midpoint", "RK4", "Adaptive",
     "SingleShooting", "MultipleShooting", "Trapezoidal", "HermiteSimpson", "ForwardBackwardSweep",
     "Ipopt", "SLSQP", "Extragradient",
