@@ -1,13 +1,16 @@
-"""Extragradient batch throughput: one NLP, a batch of problems that differ in parameters and initial state, solved
-as one vmapped program (``solve_batch``) vs. one at a time (``solve(..., Extragradient(), resimulate=False)``), with
-IPOPT one at a time for reference. Prints figures only.
+"""Batch throughput: one NLP, a batch of problems that differ in parameters and initial state, solved as one vmapped
+program (``solve_batch`` with a pure-JAX solver) against one-at-a-time solves by myriad's IPOPT and by CasADi + IPOPT,
+all in the same run. Prints figures only.
 
-The one-at-a-time rates are measured on the first ``--subset`` members and extrapolated to the whole batch (the
-output says so). Compile time is reported separately and excluded from every rate. JAX's default device is used (a
-GPU where there is one: that is where one vmapped program should pay off); set JAX_PLATFORMS=cpu to force the CPU.
+The NLP is the published setting by default (single shooting, Heun, 100 control intervals), the one
+``bench/casadi_peer.py`` builds in CasADi, so the CasADi row solves the same problems (parameters and x0 are nlpsol
+parameters there). The one-at-a-time rates are measured on the first ``--subset`` members and extrapolated to the
+whole batch (the output says so). Compile and build time is reported separately and excluded from every rate. JAX's
+default device is used (a GPU where there is one); set JAX_PLATFORMS=cpu to force the CPU.
 
-Usage: python bench/batch_throughput.py [--system mould_fungicide] [--transcription trapezoidal] [--grid 50]
-                                        [--batch 1024] [--subset 32] [--spread 0.1] [--json FILE]
+Usage: python bench/batch_throughput.py [--systems mould_fungicide epidemic] [--solver interior_point]
+                                        [--transcription single_shooting] [--grid 100] [--batch 1024]
+                                        [--subset 32] [--spread 0.1] [--json FILE]
 """
 
 from __future__ import annotations
@@ -18,17 +21,28 @@ import math
 import os
 import sys
 import time
+from pathlib import Path
 
-import jax
+# One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
+# go through SciPy's threaded OpenBLAS, and on the busy 2-core machine a 202 x 202 Cholesky measured a median 10 ms
+# (worst 1.5 s) with its default threads against 1 ms (worst 16 ms) with one. IPOPT's own BLAS (Debian's
+# openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
 from myriad.runtime import load  # noqa: E402
+from myriad.runtime.integrators import Heun  # noqa: E402
 from myriad.runtime.solve import solve, solve_batch  # noqa: E402
-from myriad.runtime.solvers import Extragradient, Ipopt  # noqa: E402
-from myriad.runtime.transcriptions import SingleShooting, Trapezoidal  # noqa: E402
+from myriad.runtime.solvers import Extragradient, InteriorPoint, Ipopt  # noqa: E402
+from myriad.runtime.transcriptions import SingleShooting, Trapezoidal, control_scale, state_scale  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+BATCHED = {"interior_point": InteriorPoint, "extragradient": Extragradient}
 
 
 def make_batch(system, batch: int, spread: float, seed: int):
@@ -48,114 +62,135 @@ def make_batch(system, batch: int, spread: float, seed: int):
 
 
 def member(params, x0, i):
-    return {k: v[i] for k, v in params.items()}, x0[i]
+    return {k: float(v[i]) for k, v in params.items()}, x0[i]
 
 
 def one_at_a_time(system, transcription, solver, params, x0, n):
-    """Solve members 0..n-1 one by one; the first solve compiles (its compile time is returned separately)."""
-    sols, compile_s, solve_s, wall = [], 0.0, 0.0, 0.0
+    """Solve members 0..n-1 one by one, after an untimed solve of member 0 that compiles (and traces)."""
+    t0 = time.perf_counter()
+    solve(system, transcription, solver, params=member(params, x0, 0)[0], x0=x0[0], resimulate=False)
+    compile_s = time.perf_counter() - t0
+    costs, converged, wall = [], [], 0.0
     for i in range(n):
         p, x = member(params, x0, i)
         t0 = time.perf_counter()
         sol = solve(system, transcription, solver, params=p, x0=x, resimulate=False)
-        elapsed = time.perf_counter() - t0
-        compile_s += sol.compile_seconds
-        solve_s += sol.solve_seconds
-        wall += elapsed - sol.compile_seconds
-        sols.append(sol)
-    return sols, compile_s, solve_s, wall
+        wall += time.perf_counter() - t0
+        costs.append(sol.cost)
+        converged.append(sol.converged)
+    return {"costs": costs, "converged": converged, "compile_seconds": compile_s, "seconds": wall}
+
+
+def casadi_one_at_a_time(system, name, params, x0, n):
+    """The same members by CasADi + IPOPT (the published-setting NLP of bench/casadi_peer.py), one nlpsol call each."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from casadi_peer import CasadiShooting, export_file  # after JAX chose its device: it defaults JAX to the CPU
+
+    cs = export_file(ROOT / "specs" / f"{name}.yaml")
+    t0 = time.perf_counter()
+    peer = CasadiShooting(cs, control_scale(system), state_scale(system), dict(Ipopt().ipopt_options()))
+    build = time.perf_counter() - t0
+    nlp_z0 = None
+    costs, converged, wall = [], [], 0.0
+    for i in range(n):
+        p, x = member(params, x0, i)
+        peer.p = np.concatenate([cs.params_vector(p), x])
+        if nlp_z0 is None:  # myriad's own starting point (the controls' initial guess), as in casadi_peer
+            from myriad.runtime.solve import transcribe
+            from myriad.runtime.transcriptions import default_data
+
+            nlp_z0 = np.asarray(transcribe(system, SingleShooting(controls=100, integrator=Heun()))
+                                .initial_guess(default_data(system)), float)
+        r = peer.solve(nlp_z0 / peer.s_u)
+        wall += r["seconds"]
+        costs.append(r["cost"])
+        converged.append(r["converged"])
+    return {"costs": costs, "converged": converged, "compile_seconds": build, "seconds": wall}
+
+
+def _machine() -> str:
+    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                  if line.startswith("model name")), "unknown CPU") if Path("/proc/cpuinfo").exists() else "?"
+    return f"{model}, {os.cpu_count()} cores"
+
+
+def _rel(a, b):
+    return abs(a - b) / max(abs(b), 1e-12)
+
+
+def run_system(name, args) -> dict:
+    system = load(name)
+    tr = (Trapezoidal(intervals=args.grid) if args.transcription == "trapezoidal"
+          else SingleShooting(controls=args.grid, integrator=Heun()))
+    solver = BATCHED[args.solver]()
+    params, x0 = make_batch(system, args.batch, args.spread, args.seed)
+    subset = min(args.subset, args.batch)
+    print(f"\n{name}, {tr!r}; batch {args.batch}: every parameter and x0 scaled by U({1 - args.spread:g}, "
+          f"{1 + args.spread:g}) (seed {args.seed}); batched solver {solver!r}", flush=True)
+
+    # Batched: one vmapped program. The first call compiles and traces (a batch of other members, same shape: the
+    # "compile s" column is its whole wall time); the second is timed, from the host's arrays to the B Solutions.
+    warm_p, warm_x = make_batch(system, args.batch, args.spread, args.seed + 1)
+    t0 = time.perf_counter()
+    solve_batch(system, tr, solver, params=warm_p, x0=warm_x)
+    compile_b = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    batch = solve_batch(system, tr, solver, params=params, x0=x0)
+    wall_b = time.perf_counter() - t0
+    rows = {f"{args.solver}, solve_batch (vmap)": {
+        "costs": [s.cost for s in batch], "converged": [s.converged for s in batch], "compile_seconds": compile_b,
+        "seconds": wall_b, "n": args.batch}}
+    rows["ipopt (cyipopt), one at a time"] = {**one_at_a_time(system, tr, Ipopt(), params, x0, subset), "n": subset}
+    published = args.transcription == "single_shooting" and args.grid == 100
+    if published:
+        rows["CasADi + IPOPT, one at a time"] = {**casadi_one_at_a_time(system, name, params, x0, subset),
+                                                 "n": subset}
+    print(f"{'':36s} {'problems/s':>11s} {'wall s':>9s} {'compile s':>10s} {'converged':>12s}  (wall: warm, "
+          f"Python overhead included; compile s: the first, untimed call)")
+    for label, r in rows.items():
+        r["problems_per_second"] = r["n"] / r["seconds"]
+        print(f"{label:36s} {r['problems_per_second']:11.1f} {r['seconds']:9.2f} {r['compile_seconds']:10.2f} "
+              f"{sum(r['converged']):5d}/{r['n']:<6d}")
+    base = rows[f"{args.solver}, solve_batch (vmap)"]
+    for label, r in list(rows.items())[1:]:
+        pairs = [_rel(a, b) for a, b, ca, cb in zip(base["costs"], r["costs"], base["converged"], r["converged"])
+                 if ca and cb]
+        worst = f"{max(pairs):.1e}" if pairs else "-"
+        print(f"  batched / {label}: {base['problems_per_second'] / r['problems_per_second']:.1f}x throughput; "
+              f"cost max relative difference {worst} over {len(pairs)} members converged on both sides "
+              f"(one at a time: first {subset} of {args.batch}, extrapolated)")
+    if not published:
+        print("  (no CasADi row: it poses the published setting only, --transcription single_shooting --grid 100)")
+    its = np.array([s.iterations for s in batch])
+    print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (the vmapped loop runs "
+          f"until its last member stops)", flush=True)
+    return {"system": name, "transcription": repr(tr), "batch": args.batch, "subset": subset,
+            "iterations_median": float(np.median(its)), "iterations_max": int(its.max()),
+            "rows": {k: {**{f: v for f, v in r.items() if f not in ("costs", "converged")},
+                         "converged": int(sum(r["converged"]))} for k, r in rows.items()}}
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--system", default="mould_fungicide")
-    ap.add_argument("--transcription", default="trapezoidal", choices=["trapezoidal", "single_shooting"])
-    ap.add_argument("--grid", type=int, default=50, help="intervals (trapezoidal) or controls (single shooting)")
+    ap.add_argument("--systems", nargs="+", default=["mould_fungicide", "epidemic"], metavar="NAME")
+    ap.add_argument("--solver", choices=list(BATCHED), default="interior_point", help="the batched solver")
+    ap.add_argument("--transcription", default="single_shooting", choices=["single_shooting", "trapezoidal"],
+                    help="single shooting uses Heun (the published setting)")
+    ap.add_argument("--grid", type=int, default=100, help="intervals (trapezoidal) or controls (single shooting)")
     ap.add_argument("--batch", type=int, default=1024)
     ap.add_argument("--subset", type=int, default=32, help="members solved one at a time (then extrapolated)")
     ap.add_argument("--spread", type=float, default=0.1, help="relative perturbation of parameters and x0")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
-
-    system = load(args.system)
-    tr = (Trapezoidal(intervals=args.grid) if args.transcription == "trapezoidal"
-          else SingleShooting(controls=args.grid))
-    eg = Extragradient()
-    params, x0 = make_batch(system, args.batch, args.spread, args.seed)
-    subset = min(args.subset, args.batch)
-    print(f"device: {jax.devices()} (jax {jax.__version__}, {os.cpu_count()} CPUs visible)")
-    print(f"system {args.system}, {tr!r}; batch {args.batch}: every parameter and x0 scaled by "
-          f"U({1 - args.spread:g}, {1 + args.spread:g}) (seed {args.seed}); solver {eg!r}")
-
-    # Batched: one vmapped program. compile_seconds/solve_seconds of each result are the batch totals / B.
-    t0 = time.perf_counter()
-    batch = solve_batch(system, tr, eg, params=params, x0=x0)
-    wall_b = time.perf_counter() - t0
-    compile_b = sum(s.compile_seconds for s in batch)
-    solve_b = sum(s.solve_seconds for s in batch)
-    its_b = np.array([s.iterations for s in batch])
-    conv_b = sum(s.converged for s in batch)
-
-    # One at a time, Extragradient and IPOPT, on the first `subset` members.
-    seq, compile_s, solve_s, wall_s = one_at_a_time(system, tr, eg, params, x0, subset)
-    ipo, compile_i, solve_i, wall_i = one_at_a_time(system, tr, Ipopt(), params, x0, subset)
-
-    rate_b = args.batch / solve_b
-    rate_s, rate_i = subset / solve_s, subset / solve_i
-    # Wall-clock rates exclude compilation but include everything else a caller waits for (data preparation, the
-    # per-member results, Python overhead).
-    wall_rate_b = args.batch / (wall_b - compile_b)
-    wall_rate_s, wall_rate_i = subset / wall_s, subset / wall_i
-    same = [abs(a.cost - b.cost) / max(abs(b.cost), 1e-12) for a, b in zip(seq, batch)]
-    vs_ipopt = [abs(a.cost - b.cost) / max(abs(b.cost), 1e-12)
-                for a, b in zip(batch, ipo) if a.converged and b.converged]
-
-    print()
-    print(f"{'':36s} {'problems/s':>11s} {'problems/s':>11s} {'solve s':>9s} {'compile s':>10s} {'converged':>12s}")
-    print(f"{'':36s} {'(solve)':>11s} {'(wall)':>11s}")
-    rows = [
-        ("extragradient, solve_batch (vmap)", rate_b, wall_rate_b, solve_b, compile_b, conv_b, args.batch),
-        ("extragradient, one at a time", rate_s, wall_rate_s, solve_s, compile_s, sum(s.converged for s in seq),
-         subset),
-        ("ipopt, one at a time", rate_i, wall_rate_i, solve_i, compile_i, sum(s.converged for s in ipo), subset),
-    ]
-    for label, r, w, t, c, k, n in rows:
-        print(f"{label:36s} {r:11.1f} {w:11.1f} {t:9.2f} {c:10.2f} {k:5d}/{n:<6d}")
-    print()
-    print(f"speed-up of solve_batch over extragradient one at a time: {rate_b / rate_s:.2f}x on solve time, "
-          f"{wall_rate_b / wall_rate_s:.2f}x on wall time (over IPOPT one at a time: {rate_b / rate_i:.2f}x, "
-          f"{wall_rate_b / wall_rate_i:.2f}x)")
-    print(f"one-at-a-time figures: {subset} of {args.batch} members, extrapolated: {args.batch} problems would take "
-          f"{args.batch / rate_s:.3g} s (extragradient) and {args.batch / rate_i:.3g} s (IPOPT) of solve time; "
-          f"wall time per solve incl. Python overhead: {wall_s / subset * 1e3:.1f} ms and "
-          f"{wall_i / subset * 1e3:.1f} ms")
-    print(f"solve_batch wall time {wall_b:.2f} s (incl. compile and per-member result assembly); extragradient "
-          f"iterations per member: median {int(np.median(its_b))}, max {its_b.max()} (the vmapped loop runs max "
-          f"iterations for all {args.batch})")
-    print(f"batched vs. single extragradient cost (same members): max relative difference {max(same):.1e}")
-    if vs_ipopt:
-        print(f"extragradient vs. IPOPT cost (converged pairs, first {subset}): max relative difference "
-              f"{max(vs_ipopt):.1e}")
+    print(f"device: {jax.devices()} (jax {jax.__version__}); host CPU: {_machine()}")
+    records = [run_system(name, args) for name in args.systems]
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump({
-                "device": str(jax.devices()), "system": args.system, "transcription": repr(tr), "batch": args.batch,
-                "subset": subset, "spread": args.spread, "seed": args.seed,
-                "batched": {"problems_per_second": rate_b, "solve_seconds": solve_b, "compile_seconds": compile_b,
-                            "wall_seconds": wall_b, "wall_problems_per_second": wall_rate_b, "converged": int(conv_b),
-                            "iterations_median": int(np.median(its_b)), "iterations_max": int(its_b.max())},
-                "sequential_extragradient": {"problems_per_second": rate_s, "solve_seconds": solve_s,
-                                             "compile_seconds": compile_s, "wall_problems_per_second": wall_rate_s,
-                                             "converged": int(sum(s.converged for s in seq))},
-                "sequential_ipopt": {"problems_per_second": rate_i, "solve_seconds": solve_i,
-                                     "compile_seconds": compile_i, "wall_problems_per_second": wall_rate_i,
-                                     "converged": int(sum(s.converged for s in ipo))},
-                "speedup": rate_b / rate_s,
-                "max_rel_diff_batched_vs_single": max(same),
-                "max_rel_diff_vs_ipopt": max(vs_ipopt) if vs_ipopt else None,
-            }, fh, indent=1)
-    return 0 if math.isfinite(rate_b) else 1
+            json.dump({"device": str(jax.devices()), "machine": _machine(), "solver": args.solver,
+                       "spread": args.spread, "seed": args.seed, "systems": records}, fh, indent=1)
+    return 0 if all(math.isfinite(r["rows"][f"{args.solver}, solve_batch (vmap)"]["problems_per_second"])
+                    for r in records) else 1
 
 
 if __name__ == "__main__":

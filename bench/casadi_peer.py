@@ -16,17 +16,21 @@ Both sides solve the same NLP, the one runtime/transcriptions/single_shooting.py
 CasADi side: f, L and phi come from the compiler's sympy IR through myriad.compiler.casadi_export (not from the
 generated JAX code); the rollout is unrolled in SX, derivatives are CasADi's AD, IPOPT is CasADi's nlpsol plugin.
 Parameters and x0 are nlpsol parameters (data, as in myriad), not constants folded into the graph.
-myriad side: solve(system, SingleShooting(controls=100, integrator=Heun()), Ipopt(), resimulate=False).
+myriad side: solve(system, SingleShooting(controls=100, integrator=Heun()), SOLVER, resimulate=False), SOLVER being
+Ipopt() (cyipopt, one Python callback per evaluation) or, with --solver interior_point, InteriorPoint() (the whole
+solve one compiled XLA program; its own algorithm and stopping test, IPOPT's tol = 1e-8, so the costs agree to about
+1e-8, not to the last digit).
 
 Times: cold = the first solve of the system in this process, building included (CasADi: the SX graph and nlpsol with
 its derivative functions, but not the sympy export, which stands for myriad's ready-made generated module; myriad:
 loading the module, transcription, tracing, XLA compilation, Hessian-pattern detection); warm = the
 same solve called again with the same inputs (myriad reuses its compiled functions; CasADi re-calls the nlpsol
-object), the minimum over --repeat calls. After timing, both NLPs are evaluated at the common starting point as a
-check that they are the same problem ("start" column: the largest relative difference of objective and
-constraints).
+object), the minimum over --repeat calls, the two sides alternating so that a burst of load from other processes hits
+both; 'spread' is the range of the --repeat paired ratios (the i-th myriad over the i-th CasADi re-solve). After
+timing, both NLPs are evaluated at the common starting point as a check that they are the same problem ("start"
+column: the largest relative difference of objective and constraints).
 
-Usage: python bench/casadi_peer.py [--systems NAME ...] [--repeat R] [--json FILE]
+Usage: python bench/casadi_peer.py [--solver ipopt|interior_point] [--systems NAME ...] [--repeat R] [--json FILE]
 """
 
 from __future__ import annotations
@@ -41,6 +45,11 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")  # like CasADi, on the CPU (tiny problems gain nothing from a GPU)
+# One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
+# go through SciPy's threaded OpenBLAS, and on the busy 2-core machine a 202 x 202 Cholesky measured a median 10 ms
+# (worst 1.5 s) with its default threads against 1 ms (worst 16 ms) with one. IPOPT's own BLAS (Debian's
+# openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import casadi  # noqa: E402
 import jax  # noqa: E402
@@ -54,6 +63,7 @@ import numpy as np  # noqa: E402
 from myriad.compiler.casadi_export import CasadiSystem, export_file  # noqa: E402
 from myriad.runtime import Heun, Ipopt, SingleShooting, load, solve  # noqa: E402
 from myriad.runtime.solve import transcribe  # noqa: E402
+from myriad.runtime.solvers import InteriorPoint  # noqa: E402
 from myriad.runtime.systems import NAMES  # noqa: E402
 from myriad.runtime.transcriptions import control_scale, default_data, state_scale  # noqa: E402
 
@@ -133,8 +143,12 @@ def _rel(a: float, b: float) -> float:
     return 0.0 if scale == 0.0 else abs(a - b) / scale
 
 
-def run_system(name: str, repeat: int) -> dict:
-    solver = Ipopt()
+SOLVERS = {"ipopt": Ipopt, "interior_point": InteriorPoint}
+
+
+def run_system(name: str, repeat: int, solver_name: str = "ipopt") -> dict:
+    solver = SOLVERS[solver_name]()
+    ipopt = Ipopt()  # the peer's options: myriad's IPOPT settings, whichever solver myriad uses
 
     # myriad: everything from scratch (the system module is imported, nothing compiled yet)
     def myriad_solve():
@@ -143,7 +157,6 @@ def run_system(name: str, repeat: int) -> dict:
     system, load_seconds = _timed(lambda: load(name))
     sol, m_cold = _timed(myriad_solve)
     m_cold += load_seconds
-    m_warm = min(_timed(myriad_solve)[1] for _ in range(repeat))
 
     # CasADi: export from the spec, build the NLP, solve
     nlp = transcribe(system, SETTING)  # cached by the solve above: only its starting point and scales are used here
@@ -153,11 +166,16 @@ def run_system(name: str, repeat: int) -> dict:
     # The export (sympy -> CasADi) is not timed: it stands for myriad's generated module, imported ready-made.
     cs, export_seconds = _timed(lambda: export_file(ROOT / "specs" / f"{name}.yaml"))
     peer, c_build = _timed(lambda: CasadiShooting(cs, control_scale(system), state_scale(system),
-                                                  dict(solver.ipopt_options())))
+                                                  dict(ipopt.ipopt_options())))
     w0 = z0 / peer.s_u
     res = peer.solve(w0)
     c_cold = c_build + res["seconds"]
-    c_warm = min(peer.solve(w0)["seconds"] for _ in range(repeat))
+    m_times, c_times = [], []
+    for _ in range(repeat):  # alternating, so that load from other processes hits both sides alike
+        m_times.append(_timed(myriad_solve)[1])
+        c_times.append(peer.solve(w0)["seconds"])
+    m_warm, c_warm = min(m_times), min(c_times)
+    paired = [m / c for m, c in zip(m_times, c_times)]
 
     # The same problem? Both NLPs at the common starting point (outside the timed regions).
     f_c, g_c = (np.asarray(v, dtype=np.float64).ravel() for v in peer.evaluate(w0, peer.p))
@@ -178,6 +196,7 @@ def run_system(name: str, repeat: int) -> dict:
         "relative_difference": _rel(sol.cost, res["cost"]),
         "start_point_difference": start_diff,
         "warm_ratio": m_warm / c_warm if c_warm > 0 else math.inf,
+        "paired_ratios": paired,
     }
 
 
@@ -194,7 +213,7 @@ def _warm_up() -> None:
 
 
 HEAD = (f"{'system':18s} {'myriad cost':>13s} {'CasADi cost':>13s} {'rel diff':>8s} {'start':>7s} {'iters':>9s} "
-        f"{'cold m s':>8s} {'cold c s':>8s} {'warm m s':>8s} {'warm c s':>8s} {'warm m/c':>8s}")
+        f"{'cold m s':>8s} {'cold c s':>8s} {'warm m s':>8s} {'warm c s':>8s} {'warm m/c':>8s} {'spread':>11s}")
 
 
 def _line(r: dict) -> str:
@@ -204,7 +223,20 @@ def _line(r: dict) -> str:
     return (f"{r['system']:18s} {m['cost']:13.7g} {c['cost']:13.7g} {r['relative_difference']:8.1e} "
             f"{r['start_point_difference']:7.0e} {m['iterations']:>4d}/{c['iterations']:<4d} "
             f"{m['cold_seconds']:8.2f} {c['cold_seconds']:8.2f} {m['warm_seconds']:8.3f} {c['warm_seconds']:8.3f} "
-            f"{r['warm_ratio']:8.2f}{flag}")
+            f"{r['warm_ratio']:8.2f} {min(r['paired_ratios']):5.2f}-{max(r['paired_ratios']):<5.2f}{flag}")
+
+
+def _machine() -> str:
+    """The CPU model and core count, for the figures' provenance."""
+    model = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
 
 
 def _json_safe(obj):
@@ -219,6 +251,8 @@ def _json_safe(obj):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--solver", choices=list(SOLVERS), default="ipopt",
+                    help="myriad's NLP solver (the peer is always CasADi + IPOPT)")
     ap.add_argument("--systems", nargs="+", default=list(NAMES), metavar="NAME")
     ap.add_argument("--repeat", type=int, default=3, help="warm solves per side; the minimum is reported")
     ap.add_argument("--json", metavar="FILE", help="also write the records as JSON")
@@ -231,16 +265,17 @@ def main(argv=None) -> int:
 
     _warm_up()
     ipopt_version = ".".join(map(str, cyipopt.IPOPT_VERSION))
-    print(f"published setting: single shooting, N = {N}, Heun, IPOPT (exact Hessian); IPOPT options on both sides: "
+    print(f"published setting: single shooting, N = {N}, Heun; IPOPT (exact Hessian) options: "
           f"{Ipopt().ipopt_options()}")
-    print(f"myriad: JAX {jax.__version__} on {jax.devices()[0].platform}, IPOPT {ipopt_version} (cyipopt); "
-          f"peer: CasADi {casadi.__version__} (SX, its bundled IPOPT)")
+    side = f"IPOPT {ipopt_version} (cyipopt)" if args.solver == "ipopt" else f"{SOLVERS[args.solver]()}"
+    print(f"myriad: JAX {jax.__version__} on {jax.devices()[0].platform}, {side}; "
+          f"peer: CasADi {casadi.__version__} (SX, its bundled IPOPT); {_machine()}")
     print(f"warm = min over {args.repeat} re-solves; 'start' = relative difference of the two NLPs at the starting "
           "point; 'iters' = myriad/CasADi")
     print(HEAD)
     records = []
     for name in args.systems:
-        r = run_system(name, args.repeat)
+        r = run_system(name, args.repeat, args.solver)
         records.append(r)
         print(_line(r), flush=True)
 
@@ -252,10 +287,14 @@ def main(argv=None) -> int:
     print(f"converged: myriad {sum(r['myriad']['converged'] for r in records)}/{len(records)}, "
           f"CasADi {sum(r['casadi']['converged'] for r in records)}/{len(records)}; "
           f"largest relative cost difference where both converged: {worst:.1e}")
-    print(f"warm ratio myriad / CasADi: median {median:.2f} (min {min(ratios):.2f}, max {max(ratios):.2f}) "
-          f"over {len(records)} systems")
+    print(f"warm ratio myriad ({args.solver}) / CasADi: median {median:.2f} (min {min(ratios):.2f}, "
+          f"max {max(ratios):.2f}) over {len(records)} systems; {sum(x <= 1.0 for x in ratios)} at or below 1.0")
+    pooled = sorted(x for r in records for x in r["paired_ratios"])
+    print(f"all {len(pooled)} paired re-solve ratios: median {statistics.median(pooled):.2f}, "
+          f"quartiles {pooled[len(pooled) // 4]:.2f}-{pooled[(3 * len(pooled)) // 4]:.2f}")
     if args.json:
-        summary = {"setting": {"transcription": "single_shooting", "controls": N, "integrator": "heun",
+        summary = {"solver": args.solver, "machine": _machine(),
+                   "setting": {"transcription": "single_shooting", "controls": N, "integrator": "heun",
                                "ipopt_options": Ipopt().ipopt_options()},
                    "versions": {"jax": jax.__version__, "casadi": casadi.__version__, "cyipopt_ipopt": ipopt_version},
                    "repeat": args.repeat, "median_warm_ratio": median, "systems": records}

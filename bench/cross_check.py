@@ -6,10 +6,11 @@
     controls, linearly interpolated, in the true dynamics with the adaptive integrator). The sweep is "n/a" where
     it cannot apply: no u* (the compiler could not characterise it), or a state bound binds (the sweep has no
     state-constraint multipliers and reports the violation).
-(b) Solvers (same NLP): the smooth Lenhart systems on one transcription, IPOPT vs. SLSQP vs. Extragradient. Same
-    discretisation, so the discrete ``cost`` is compared directly.
+(b) Solvers (same NLP): the smooth Lenhart systems on one transcription, IPOPT vs. SLSQP vs. Extragradient vs.
+    InteriorPoint (pure JAX). Same discretisation, so the discrete ``cost`` is compared directly.
 
-Usage: python bench/cross_check.py [--systems a,b,...] [--part a|b|ab] [--json FILE] [--markdown FILE]
+Usage: python bench/cross_check.py [--systems a,b,...] [--part a|b|ab] [--solvers ipopt,interior_point,...]
+                                   [--json FILE] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from myriad.runtime import load  # noqa: E402
 from myriad.runtime.integrators import RK4, Adaptive  # noqa: E402
 from myriad.runtime.simulate import simulate  # noqa: E402
 from myriad.runtime.solve import Solution, solve  # noqa: E402
-from myriad.runtime.solvers import SLSQP, Extragradient, Ipopt  # noqa: E402
+from myriad.runtime.solvers import SLSQP, Extragradient, InteriorPoint, Ipopt  # noqa: E402
 from myriad.runtime.system import OptimalControlUnavailable  # noqa: E402
 from myriad.runtime.transcriptions import (  # noqa: E402
     ForwardBackwardSweep,
@@ -70,7 +71,8 @@ TRANSCRIPTION_B = Trapezoidal(intervals=50)
 # start held at 100 and 50 but fall to 1e-4, so the start's magnitudes, which scale the steps, are poor there). At
 # about 7 us per iteration on this grid that is 2 s, so the cross-check grants 4e5 rather than change the default for
 # every solve (a failing single-shooting solve of Cartpole costs 1.8 ms per iteration).
-SOLVERS_B = {"ipopt": Ipopt(), "slsqp": SLSQP(), "extragradient": Extragradient(max_iter=400_000)}
+SOLVERS_B = {"ipopt": Ipopt(), "slsqp": SLSQP(), "extragradient": Extragradient(max_iter=400_000),
+             "interior_point": InteriorPoint()}
 AGREE = 0.01  # relative spread at which results "agree"
 RESIM_TOL = 1e-4  # re-simulated state-bound or final-value violation (relative to the state's scale) worth a mark
 ACTIVE_TOL = 1e-6  # a state bound is "active" where a direct solution comes this close (relative to the state scale)
@@ -216,12 +218,13 @@ def table_a(rows) -> str:
 # ---- (b) solvers ---------------------------------------------------------------------------------------------------
 
 
-def part_b(names, log) -> list[dict]:
+def part_b(names, log, solvers=tuple(SOLVERS_B)) -> list[dict]:
     rows = []
     for name in names:
         system = load(name)
         row = {"system": name, "transcription": repr(TRANSCRIPTION_B), "results": {}}
-        for key, solver in SOLVERS_B.items():
+        for key in solvers:
+            solver = SOLVERS_B[key]
             t0 = time.perf_counter()
             sol = solve(system, TRANSCRIPTION_B, solver, resimulate=False)
             rec = sol.record()
@@ -241,7 +244,7 @@ def part_b(names, log) -> list[dict]:
 
 
 def table_b(rows) -> str:
-    cols = list(SOLVERS_B)
+    cols = list(rows[0]["results"]) if rows else list(SOLVERS_B)
     head = ("| system | " + " | ".join(f"{c} cost" for c in cols) + " | max rel. diff to IPOPT | agree within 1 % | "
             "iterations (" + " / ".join(cols) + ") | solve s (" + " / ".join(cols) + ") | notes |")
     lines = [head, "|" + "---|" * (len(cols) + 6)]
@@ -256,8 +259,8 @@ def table_b(rows) -> str:
                      + " | " + " / ".join(f"{res[c]['solve_seconds']:.2f}" for c in cols) + f" | {notes} |")
     lines.append("")
     lines.append("✗ not converged (its cost is shown, and counted in the max rel. diff, but the row does not agree). "
-                 "Iterations: IPOPT and SLSQP iterations, extragradient steps (two gradient evaluations each). "
-                 "Solve seconds exclude compilation.")
+                 "Iterations: IPOPT, SLSQP and interior-point iterations, extragradient steps (two gradient "
+                 "evaluations each). Solve seconds exclude compilation.")
     return "\n".join(lines)
 
 
@@ -265,12 +268,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--systems", help="comma-separated subset (each part keeps only its own systems)")
     ap.add_argument("--part", default="ab", choices=["a", "b", "ab"], help="which matrix to run (default both)")
+    ap.add_argument("--solvers", default=",".join(SOLVERS_B),
+                    help=f"(b): comma-separated columns, ipopt always among them (default: {','.join(SOLVERS_B)})")
     ap.add_argument("--json", metavar="FILE", help="write every record as JSON")
     ap.add_argument("--markdown", metavar="FILE", help="write the tables as Markdown")
     args = ap.parse_args(argv)
     chosen = None if not args.systems else [s.strip() for s in args.systems.split(",") if s.strip()]
     names_a = [n for n in TRANSCRIPTION_SYSTEMS if chosen is None or n in chosen]
     names_b = [n for n in SOLVER_SYSTEMS if chosen is None or n in chosen]
+    solvers_b = ["ipopt"] + [s.strip() for s in args.solvers.split(",") if s.strip() and s.strip() != "ipopt"]
+    if bad := sorted(set(solvers_b) - set(SOLVERS_B)):
+        ap.error(f"unknown solver(s) {bad}; choose from {', '.join(SOLVERS_B)}")
     if chosen is not None:
         unknown = sorted(set(chosen) - set(TRANSCRIPTION_SYSTEMS))
         if unknown:
@@ -292,9 +300,9 @@ def main(argv=None) -> int:
         out["transcriptions"] = rows_a
     if "b" in args.part and names_b:
         log(f"(b) solvers on {TRANSCRIPTION_B!r}")
-        rows_b = part_b(names_b, log)
-        text = (f"(b) Discrete cost per NLP solver on {TRANSCRIPTION_B!r} (iterations: IPOPT/SLSQP iterations, "
-                f"extragradient steps); " + ", ".join(f"{k} = {v!r}" for k, v in SOLVERS_B.items())
+        rows_b = part_b(names_b, log, solvers_b)
+        text = (f"(b) Discrete cost per NLP solver on {TRANSCRIPTION_B!r} (iterations: IPOPT/SLSQP/interior-point "
+                f"iterations, extragradient steps); " + ", ".join(f"{k} = {SOLVERS_B[k]!r}" for k in solvers_b)
                 + "\n\n" + table_b(rows_b))
         print(text + "\n")
         md.append(text)

@@ -15,6 +15,11 @@ import os
 import statistics
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
+# go through SciPy's threaded OpenBLAS, and on the busy 2-core machine a 202 x 202 Cholesky measured a median 10 ms
+# (worst 1.5 s) with its default threads against 1 ms (worst 16 ms) with one. IPOPT's own BLAS (Debian's
+# openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import jax  # noqa: E402
 
@@ -40,7 +45,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
     transcription = SETTINGS[args.transcription]
-    print(f"{args.transcription}: {transcription}; {os.cpu_count()} CPUs")
+    model = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
+                 "unknown CPU") if os.path.exists("/proc/cpuinfo") else "unknown CPU"
+    print(f"{args.transcription}: {transcription}; {model}, {os.cpu_count()} CPUs")
     print(f"{'system':18s} {'IPOPT cost':>16s} {'IP cost':>16s} {'rel diff':>9s} {'final diff':>10s} "
           f"{'it':>7s} {'status':>14s} {'compile s':>9s} {'IPOPT ms':>9s} {'IP ms':>8s} {'ratio':>6s}")
     ratios, agree = [], 0

@@ -81,7 +81,19 @@ def _parser():
     b.add_argument("--markdown", metavar="FILE")
     b.add_argument("--plots", metavar="DIR", help="one PNG per system (published-setting solution)")
     b.add_argument("--published-only", action="store_true", help="skip the other transcriptions")
+    b.add_argument("--solver", default=None, choices=list(SOLVERS),
+                   help="the NLP solver of every direct transcription in the table (default: ipopt)")
+    for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
+        _add_cache_options(sub.choices[name])
     return p
+
+
+def _add_cache_options(parser):
+    cache = parser.add_mutually_exclusive_group()
+    cache.add_argument("--cache-dir", metavar="DIR",
+                       help="JAX's persistent compilation cache, reused by later runs and safe to delete "
+                            "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
+    cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
 
 
 def _takes_integrator(cls) -> bool:
@@ -90,10 +102,15 @@ def _takes_integrator(cls) -> bool:
     return any(f.name == "integrator" for f in dataclasses.fields(cls))
 
 
-def _configure_jax():
+def _configure_jax(args=None):
     import jax
 
+    from .cache import enable_compilation_cache
+
     jax.config.update("jax_enable_x64", True)  # trajectory optimisation needs float64
+    # Before anything compiles: JAX reads the cache folder once, at its first compilation.
+    if args is not None and not getattr(args, "no_cache", False):
+        enable_compilation_cache(getattr(args, "cache_dir", None))
 
 
 def _transcription(args):
@@ -169,7 +186,7 @@ def _first_error(*errors):
 
 
 def _cmd_solve(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from . import load, solve
     from .solvers import SOLVERS
 
@@ -285,35 +302,35 @@ def _report_error_estimate(sol, tolerance):
 
 
 def _cmd_sysid(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from .sysid.cli import run
 
     return run(args)
 
 
 def _cmd_e2e(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from .e2e.cli import run
 
     return run(args)
 
 
 def _cmd_rl_reference(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from .rl.cli import run
 
     return run(args)
 
 
 def _cmd_sweep(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from .sweep.cli import run
 
     return run(args)
 
 
 def _cmd_bench(args) -> int:
-    _configure_jax()
+    _configure_jax(args)
     from .bench import markdown_table, run_bench
     from .systems import NAMES
 
@@ -328,8 +345,11 @@ def _cmd_bench(args) -> int:
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
-    rows = run_bench(names, alternatives=not args.published_only, progress=lambda s: print(s, flush=True),
-                     plots_dir=args.plots)
+    from .solvers import SOLVERS
+
+    solver = SOLVERS[args.solver]() if args.solver else None
+    rows = run_bench(names, alternatives=not args.published_only, solver=solver,
+                     progress=lambda s: print(s, flush=True), plots_dir=args.plots)
     total = time.perf_counter() - t0
     table_seconds = sum(r.main.compile_seconds + r.main.solve_seconds for r in rows)
     table = markdown_table(rows, total)

@@ -5,6 +5,9 @@ import os
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # Threaded OpenBLAS inside SciPy's SLSQP thrashes a busy 2-core machine (175 s instead of 1.4 s measured).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# Tests that call the CLI in-process would otherwise turn on the persistent compilation cache in the user's
+# ~/.cache for the rest of the worker; the cache's own tests name their folders explicitly.
+os.environ.setdefault("MYRIAD_JAX_CACHE", "off")
 
 import jax  # noqa: E402
 

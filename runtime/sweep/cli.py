@@ -33,7 +33,7 @@ def add_parser(sub) -> None:
                                                              "in flight at once")
     cache = s.add_mutually_exclusive_group()
     cache.add_argument("--cache-dir", metavar="DIR", help="the JAX compilation cache the workers share "
-                                                          "(default: ~/.cache/myriad/jax)")
+                                                          "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
     cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
     s.add_argument("--json", metavar="FILE", help="every record, with the sweep's configuration")
     s.add_argument("--csv", metavar="FILE", help="every field of every record, one row per task")
@@ -45,8 +45,9 @@ def _usage(message: str) -> int:
 
 
 def run(args) -> int:
+    from ..cache import cache_dir as resolve_cache_dir
     from .backends import BACKENDS
-    from .config import DEFAULT_CACHE_DIR, SweepConfig
+    from .config import SweepConfig
     from .run import run_sweep
     from .table import markdown, write_tables
 
@@ -59,7 +60,7 @@ def run(args) -> int:
             return _usage("--workers must be at least 1")
     if error := first_error(args, files=("json", "csv", "markdown")):
         return _usage(error)
-    cache_dir = None if args.no_cache else (args.cache_dir or DEFAULT_CACHE_DIR)
+    cache_dir = None if args.no_cache else resolve_cache_dir(args.cache_dir)
     try:
         config = SweepConfig(systems=args.systems, methods=args.methods or ["solve"], seeds=args.seeds,
                              cache_dir=cache_dir)

@@ -14,12 +14,10 @@ import dataclasses
 import json
 from typing import Any
 
+from ..cache import DEFAULT_CACHE_DIR  # one folder for the workers and the commands; `~` expanded per node
 from .kinds import KINDS
 
 __all__ = ["DEFAULT_CACHE_DIR", "Method", "SweepConfig", "parse_method"]
-
-# One folder for every worker of a machine (``~`` is expanded by each worker, so a remote node uses its own home).
-DEFAULT_CACHE_DIR = "~/.cache/myriad/jax"
 
 
 @dataclasses.dataclass(frozen=True)

@@ -25,20 +25,18 @@ VOLATILE = ("host", "pid")
 
 
 def _setup(cache_dir: str | None) -> None:
-    """float64 (every task needs it), and this machine's shared compilation cache in a process without one.
+    """float64 (every task needs it), and this machine's shared compilation cache (:mod:`myriad.runtime.cache`).
 
-    An existing setting (``JAX_COMPILATION_CACHE_DIR``, or the caller's own in the serial backend) is kept: JAX reads
-    it once, at its first compilation. ``jax_persistent_cache_min_compile_time_secs`` is lowered from 1 s to 0 so
-    that the many small programs of a solve (objective, derivatives, simulation) are shared too.
+    A process that already has a cache folder (``JAX_COMPILATION_CACHE_DIR``, or the caller's own in the serial
+    backend) keeps it: JAX reads it once, at its first compilation. ``cache_dir`` None: no cache.
     """
     import jax
 
+    from ..cache import enable_compilation_cache
+
     jax.config.update("jax_enable_x64", True)
-    if cache_dir and not jax.config.jax_compilation_cache_dir:
-        path = os.path.expanduser(cache_dir)
-        os.makedirs(path, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", path)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    if cache_dir:
+        enable_compilation_cache(cache_dir)
 
 
 def _jsonable(value: Any) -> Any:

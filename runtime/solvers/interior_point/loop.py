@@ -10,20 +10,24 @@ iteration
    ``mu <- max(tol / 10, min(0.2 mu, mu^1.5))``);
 4. solves the Newton system with inertia correction (:mod:`.kkt`) and recovers the bound multipliers' steps;
 5. limits the steps by the fraction-to-the-boundary rule (``tau = max(0.99, 1 - mu)``), primal and dual apart;
-6. backtracks on the exact-penalty merit ``phi_mu(x) + nu ||g(x)||_1`` (Armijo, ``eta = 1e-4``), trying one
-   second-order correction after a rejected full step (against the Maratos effect); a non-finite trial is rejected;
+6. backtracks with IPOPT's filter line search (Wächter & Biegler 2006, sec. 2.3) on the pair (``theta = ||g||_1``,
+   barrier objective ``phi_mu``): a trial is accepted when the filter does not dominate it and it decreases
+   ``theta`` or ``phi_mu`` enough, or, near feasibility under the switching condition, by Armijo on ``phi_mu``
+   (``eta = 1e-4``); one second-order correction after a rejected full step that did not reduce ``theta`` counters
+   the Maratos effect; a non-finite trial is rejected;
 7. keeps ``z`` within ``[mu / (1e10 gap), 1e10 mu / gap]`` of the primal-dual central path (IPOPT's eq. 16).
 
-Why a merit function and not IPOPT's filter: its state is two scalars (``nu`` and the merit), which fits a fixed-shape
-``while_loop`` and a ``vmap`` with no filter list to bound or reset; the second-order correction and the
-inertia-corrected steps keep what the filter's flexibility buys on these problems (measured in README.md).
-``nu`` only grows, to ``(grad phi^T d + max(d^T H d, 0) / 2) / (0.9 ||g||_1) + 1`` when smaller (Nocedal & Wright,
-eq. 18.36), which makes every Newton step a descent direction of the merit.
+The filter is a fixed array of ``FILTER_SIZE`` pairs (empty entries are ``inf``), emptied whenever ``mu`` changes, as
+IPOPT does; when full, the oldest pair is replaced. That bound is what lets the loop keep fixed shapes under ``jit``
+and ``vmap``. The filter replaced an exact-penalty merit search (``phi_mu + nu ||g||_1``, Nocedal & Wright eq. 18.36)
+that crawled on Rocket Landing (3000 iterations) and took 268 on Van der Pol (README.md has the measurements).
 
-There is no restoration phase: a line search that cannot decrease the merit ends the solve, ``INFEASIBLE`` when the
-point is infeasible (the honest failure the issue allows) and ``NOT_CONVERGED`` otherwise; so do three consecutive
-negligible steps (below ``1e-10 (1 + |x|)``) at an infeasible point, where bounds block every move towards
-feasibility and the fraction-to-the-boundary rule shrinks the steps geometrically.
+There is no restoration phase. Where IPOPT would enter it (the filter rejects every step down to ``alpha_min``, its
+eq. 23), the search restarts from the full step on that merit function, and a step accepted there empties the filter;
+if the merit cannot be decreased either, the solve ends, ``INFEASIBLE`` when the point is infeasible (the honest
+failure the issue allows) and ``NOT_CONVERGED`` otherwise; so do three consecutive negligible steps (below
+``1e-10 (1 + |x|)``) at an infeasible point, where bounds block every move towards feasibility and the
+fraction-to-the-boundary rule shrinks the steps geometrically.
 """
 
 from __future__ import annotations
@@ -43,6 +47,11 @@ __all__ = ["InteriorPointSolution", "make_solve_fn"]
 RUNNING = -1
 MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 0.1, 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
 ETA, MAX_TRIALS = 1e-4, 45
+# The filter line search's constants, IPOPT's defaults (W&B 2006 sec. 2.3 and 3.1); FILTER_SIZE bounds the filter
+# for a fixed-shape loop: when full, the oldest pair is replaced (the filter is reset at every change of mu, and
+# between two changes the problems here add a few pairs).
+GAMMA_THETA, GAMMA_PHI, GAMMA_ALPHA, DELTA, S_THETA, S_PHI = 1e-5, 1e-8, 0.05, 1.0, 1.1, 2.3
+THETA_MIN_FACT, THETA_MAX_FACT, FILTER_SIZE = 1e-4, 1e4, 32
 # A step below STALL_STEP (relative to |x|) at an infeasible point, STALL_COUNT times in a row, ends the solve as
 # INFEASIBLE: the fraction-to-the-boundary rule shrinks every step towards bounds that block all progress.
 STALL_STEP, STALL_COUNT = 1e-10, 3
@@ -86,7 +95,12 @@ class _State(NamedTuple):
     zl: jax.Array
     zu: jax.Array
     mu: jax.Array
-    nu: jax.Array
+    nu: jax.Array  # the merit's penalty (the fallback line search)
+    theta_min: jax.Array  # the filter's thresholds on ||g||_1, fixed at the start (IPOPT's eq. 21 and 22)
+    theta_max: jax.Array
+    filter_theta: jax.Array  # the filter: FILTER_SIZE pairs (inf: empty), newest at filter_next - 1
+    filter_phi: jax.Array
+    filter_next: jax.Array
     delta_w: jax.Array
     k: jax.Array
     status: jax.Array
@@ -174,45 +188,88 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             alpha_z = jnp.minimum(_fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
                                   _fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
 
-            # Merit penalty large enough for descent, then the directional derivative of the merit.
+            # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
             theta = jnp.sum(jnp.abs(pt.g))
+            phi0 = pt.f - mu * log_barrier(x)
             slope = grad_phi @ dx
+            theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
+            theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
+            # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
+            reset = mu != st.mu
+            f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
+            f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
+            descent = slope < 0
+            switching_ok = lambda a: descent & (a * (-slope) ** S_PHI > DELTA * theta**S_THETA)  # noqa: E731
+            alpha_min = GAMMA_ALPHA * jnp.where(descent, jnp.minimum(
+                jnp.minimum(GAMMA_THETA, GAMMA_PHI * theta / jnp.where(descent, -slope, 1.0)),
+                jnp.where(theta <= theta_min,
+                          DELTA * theta**S_THETA / jnp.where(descent, -slope, 1.0) ** S_PHI, jnp.inf)), GAMMA_THETA)
+            tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
+            slack = 10.0 * EPS * jnp.abs(phi0)
+            # The fallback when the filter rejects every step down to alpha_min (where IPOPT would enter its
+            # restoration phase): backtracking on the exact-penalty merit phi + nu ||g||_1, with nu large enough
+            # for the step to be a descent direction (Nocedal & Wright, eq. 18.36); nu only grows.
             curvature = dx @ (factors.h_s @ dx)
             nu_req = (slope + 0.5 * jnp.maximum(curvature, 0.0)) / jnp.maximum(0.9 * theta, 1e-300)
             nu = jnp.where((theta > 0) & (st.nu < nu_req), nu_req + 1.0, st.nu)
-            derivative = slope - nu * theta
-            merit0 = pt.f - mu * log_barrier(x) + nu * theta
+            merit0 = phi0 + nu * theta
 
-            def merit(x_, f_, g_):
-                return f_ - mu * log_barrier(x_) + nu * jnp.sum(jnp.abs(g_))
-
-            tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
-            slack = 10.0 * EPS * jnp.abs(merit0)
+            def acceptable(alpha, theta_t, phi_t):
+                """(accepted, f-type: by Armijo under the switching condition, which leaves the filter as it is)."""
+                finite_t = jnp.isfinite(theta_t) & jnp.isfinite(phi_t)
+                f_type = (theta <= theta_min) & switching_ok(alpha)
+                armijo = phi_t <= phi0 + ETA * alpha * slope + slack
+                decrease = (theta_t <= (1.0 - GAMMA_THETA) * theta) | (phi_t <= phi0 - GAMMA_PHI * theta + slack)
+                outside = jnp.all((theta_t < f_theta) | (phi_t < f_phi))
+                ok = jnp.where(f_type, armijo, decrease) & outside & (theta_t <= theta_max) & finite_t
+                return ok, f_type
 
             def trial(ls):
-                j, _, _, _, _, g_first = ls
+                j, _, _, _, _, g_first, theta_first, _, fallback = ls
                 alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
                 x_t, lam_t = x + alpha * dx, lam + alpha * dlam
                 if second_order_correction:
-                    # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27).
-                    c_soc = alpha_max * pt.g + g_first
-                    dx_c, dlam_c = solve(factors, pt.jac, r1, -c_soc)
-                    a_c = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx_c, tau),
-                                      _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx_c, tau))
-                    use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first))
-                    x_t = jnp.where(use_soc, x + a_c * dx_c, x_t)
-                    lam_t = jnp.where(use_soc, lam + a_c * dlam_c, lam_t)
+                    # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
+                    # taken only when the full step did not reduce the infeasibility. A cond, not a select: the
+                    # correction's two solves would otherwise be paid on every trial of a long line search.
+                    def corrected(_):
+                        dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
+                        a_c = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx_c, tau),
+                                          _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx_c, tau))
+                        return x + a_c * dx_c, lam + a_c * dlam_c
+
+                    use_soc = (j == 1) & ~fallback & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
+                    x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
                 f_t, g_t = layout.values(x_t, data, sigma, row_scale)
-                m_t = merit(x_t, f_t, g_t)
-                ok = jnp.isfinite(m_t) & (m_t <= merit0 + ETA * alpha * derivative + slack)
+                theta_t = jnp.sum(jnp.abs(g_t))
+                phi_t = f_t - mu * log_barrier(x_t)
+                ok, f_type = acceptable(alpha, theta_t, phi_t)
+                by_merit = jnp.isfinite(phi_t + theta_t) & (
+                    phi_t + nu * theta_t <= merit0 + ETA * alpha * (slope - nu * theta) + slack)
+                ok = jnp.where(fallback, by_merit, ok)
                 g_first = jnp.where(j == 0, g_t, g_first)
-                return j + 1, ok, x_t, lam_t, alpha, g_first
+                theta_first = jnp.where(j == 0, theta_t, theta_first)
+                # The filter gives up below alpha_min (after the full step and its correction): restart from the
+                # full step on the merit.
+                give_up = ~fallback & ~ok & (j >= 1) & (
+                    (alpha_max * 0.5 ** j.astype(dtype) < alpha_min) | (j + 1 >= MAX_TRIALS))
+                j_next = jnp.where(give_up, 2, j + 1)
+                return j_next, ok, x_t, lam_t, alpha, g_first, theta_first, f_type, fallback | give_up
 
             first_trial = 0 if second_order_correction else 1
             ls0 = (jnp.array(first_trial), tiny, x + alpha_max * dx, lam + alpha_max * dlam, alpha_max,
-                   jnp.zeros(m, dtype))
-            _, accepted, x_new, lam_new, alpha, _ = jax.lax.while_loop(
+                   jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True), jnp.array(False))
+            _, accepted, x_new, lam_new, alpha, _, _, f_type, fallback = jax.lax.while_loop(
                 lambda ls: ~ls[1] & (ls[0] < MAX_TRIALS), trial, ls0)
+            # An h-type step adds the current pair, with its margins, to the filter; a step by the merit empties it
+            # (as IPOPT's restoration phase ends with a point the old filter may reject).
+            grow = accepted & ~tiny & ~f_type & ~fallback
+            slot = st.filter_next % FILTER_SIZE
+            f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
+            f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
+            f_theta = jnp.where(fallback & accepted, jnp.inf, f_theta)
+            f_phi = jnp.where(fallback & accepted, jnp.inf, f_phi)
+            filter_next = jnp.where(reset | (fallback & accepted), 0, st.filter_next) + grow.astype(jnp.int32)
 
             zl_new, zu_new = zl + alpha_z * dzl, zu + alpha_z * dzu
             gl_new, gu_new = gaps(x_new)
@@ -228,14 +285,19 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             move = status == RUNNING
             pick = lambda new, old: jnp.where(move, new, old)  # noqa: E731
             return _State(pick(x_new, x), pick(lam_new, lam), pick(zl_new, zl), pick(zu_new, zu), pick(mu, st.mu),
-                          pick(nu, st.nu), pick(delta_w, st.delta_w), st.k + move.astype(st.k.dtype), status, kkt,
-                          pt.objective, pt.violation, stalls, sigma, row_scale)
+                          pick(nu, st.nu), pick(theta_min, st.theta_min), pick(theta_max, st.theta_max),
+                          pick(f_theta, st.filter_theta), pick(f_phi, st.filter_phi),
+                          pick(filter_next, st.filter_next), pick(delta_w, st.delta_w),
+                          st.k + move.astype(st.k.dtype), status, kkt, pt.objective, pt.violation, stalls, sigma,
+                          row_scale)
 
         zeros = lambda k: jnp.zeros(k, dtype)  # noqa: E731
         one = jnp.ones((), dtype)
-        st0 = _State(x0, zeros(m), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one, one,
-                     0.0 * one, jnp.array(0, jnp.int32), jnp.array(RUNNING, jnp.int32), jnp.inf * one,
-                     jnp.nan * one, jnp.inf * one, jnp.array(0, jnp.int32), one, jnp.ones(m, dtype))
+        empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
+        int0 = jnp.array(0, jnp.int32)
+        st0 = _State(x0, zeros(m), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one, one, one, one,
+                     empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one, jnp.nan * one,
+                     jnp.inf * one, int0, one, jnp.ones(m, dtype))
         st = jax.lax.while_loop(lambda s: s.status == RUNNING, body, st0)
 
         gl, gu = gaps(st.x)
