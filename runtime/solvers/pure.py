@@ -22,11 +22,32 @@ import time
 from typing import Any, Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .base import CompiledFunction, cached, canonical_data
 
-__all__ = ["AbstractPureSolver"]
+__all__ = ["AbstractPureSolver", "ScaledEvaluation"]
+
+
+class ScaledEvaluation:
+    """The objective and constraints of a scaled problem in the *unscaled* ``z``, compiled once: what a pure solver
+    evaluates on the host to report a result (its cost and constraint violation)."""
+
+    def __init__(self, problem: Any):
+        self.problem = problem
+        f, scale = problem.objective, jnp.asarray(problem.scale)
+        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
+        if problem.n_constraints:
+            c = problem.constraints
+            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
+
+    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
+        """Compile the objective and constraints used to report the result; returns the seconds spent."""
+        seconds = self.objective.compile(z, data)
+        if self.problem.n_constraints:
+            seconds += self.constraints.compile(z, data)
+        return seconds
 
 
 class _Programs:

@@ -6,7 +6,6 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, ClassVar, Literal, final
 
-import jax.numpy as jnp
 import numpy as np
 import optax
 
@@ -14,13 +13,12 @@ from ...nlp import NLP, NLPResult
 from ...status import Status
 from ..base import (
     AbstractNLPSolver,
-    CompiledFunction,
     ScaledProblem,
     cached,
     constraint_violation,
     initial_point,
 )
-from ..pure import AbstractPureSolver
+from ..pure import AbstractPureSolver, ScaledEvaluation
 from .loop import ExtragradientSolution, make_solve_fn
 
 __all__ = ["Extragradient"]
@@ -207,21 +205,9 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
         return cached(nlp, ("extragradient", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
 
 
-class _Compiled:
+class _Compiled(ScaledEvaluation):
     """The pure solve and the objective and constraints for the report, for one NLP and one solver configuration."""
 
     def __init__(self, problem: ScaledProblem, solver: Extragradient):
-        self.problem = problem
+        super().__init__(problem)
         self.raw = make_solve_fn(problem, solver)
-        f, scale = problem.objective, jnp.asarray(problem.scale)
-        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
-        if problem.n_constraints:
-            c = problem.constraints
-            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
-
-    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
-        """Compile the objective and constraints used to report the result; returns the seconds spent."""
-        seconds = self.objective.compile(z, data)
-        if self.problem.n_constraints:
-            seconds += self.constraints.compile(z, data)
-        return seconds

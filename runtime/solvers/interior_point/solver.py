@@ -6,13 +6,12 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, ClassVar, final
 
-import jax.numpy as jnp
 import numpy as np
 
 from ...nlp import NLP, NLPResult
 from ...status import Status
-from ..base import AbstractNLPSolver, CompiledFunction, ScaledProblem, cached, constraint_violation, initial_point
-from ..pure import AbstractPureSolver
+from ..base import AbstractNLPSolver, ScaledProblem, cached, constraint_violation, initial_point
+from ..pure import AbstractPureSolver, ScaledEvaluation
 from .implicit import differentiable
 from .loop import InteriorPointSolution, make_solve_fn
 from .problem import Layout
@@ -133,23 +132,11 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         return cached(nlp, ("interior_point", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
 
 
-class _Compiled:
+class _Compiled(ScaledEvaluation):
     """The pure (differentiable) solve and the report's objective and constraints, for one NLP and configuration."""
 
     def __init__(self, problem: ScaledProblem, solver: InteriorPoint):
-        self.problem = problem
+        super().__init__(problem)
         loop = make_solve_fn(Layout(problem), solver.tol, solver.constr_viol_tol, solver.max_iter,
                              solver.second_order_correction)
         self.raw = differentiable(loop, problem)
-        f, scale = problem.objective, jnp.asarray(problem.scale)
-        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
-        if problem.n_constraints:
-            c = problem.constraints
-            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
-
-    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
-        """Compile the objective and constraints used to report the result; returns the seconds spent."""
-        seconds = self.objective.compile(z, data)
-        if self.problem.n_constraints:
-            seconds += self.constraints.compile(z, data)
-        return seconds
