@@ -34,6 +34,11 @@ def add_parser(sub) -> None:
     s.add_argument("--on-failure", choices=["skip", "unrolled"], default="skip",
                    help="implicit mode: when a solve does not converge, skip the step or unroll instead")
     s.add_argument("--learn-cost", nargs="+", default=(), metavar="NAME", help="also learn these cost weights")
+    s.add_argument("--init", choices=["guess", "sysid"], default="guess",
+                   help="where theta starts: the spec's guesses / random weights, or a system-identification fit "
+                        "(rounds 1; measured for Neural ODEs in docs/notes/e2e-node.md)")
+    s.add_argument("--hidden", type=int, nargs="+", default=None, metavar="W",
+                   help="node: hidden widths (default 50 50, the published Cancer Treatment network)")
     s.add_argument("--seed", type=int, default=0, metavar="S")
     add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 
@@ -50,11 +55,11 @@ def run(args) -> int:
     if args.intervals < 1:
         return _usage("--intervals must be at least 1")
     options = {k: v for k, v in (("unroll", args.unroll), ("iterations", args.iterations),
-                                 ("optimizer", args.lr)) if v is not None}
+                                 ("optimizer", args.lr), ("hidden", args.hidden)) if v is not None}
     try:
         config = E2EConfig(model=args.model, gradient=args.gradient, on_failure=args.on_failure,
                            learn_cost=tuple(args.learn_cost), seed=args.seed, reset_every=args.reset_every,
-                           **options)
+                           init=args.init, **options)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load

@@ -13,9 +13,10 @@ import numpy as np
 from ..solvers.extragradient import Extragradient
 from ..sysid.checkpoint import describe
 
-__all__ = ["E2EConfig", "GRADIENTS", "LOSSES", "MODELS", "ON_FAILURE"]
+__all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
 
 MODELS = ("parametric", "node")
+INITS = ("guess", "sysid")
 GRADIENTS = ("unrolled", "implicit")
 LOSSES = ("controls", "states", "both")
 ON_FAILURE = ("skip", "unrolled")
@@ -26,6 +27,8 @@ def _describe(v: Any) -> Any:
     ``repr`` carries memory addresses, which would make every resume look like another configuration."""
     if isinstance(v, Extragradient):
         return {f.name: _describe(getattr(v, f.name)) for f in dataclasses.fields(v)}
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):  # e.g. init's SysidConfig and what it holds
+        return {"type": type(v).__name__, **{f.name: _describe(getattr(v, f.name)) for f in dataclasses.fields(v)}}
     if callable(getattr(v, "init", None)) and callable(getattr(v, "update", None)):
         return describe(v.init)
     return describe(v)
@@ -64,7 +67,12 @@ class E2EConfig:
             iterations).
         checkpoint_every: iterations between checkpoints (with a checkpoint folder); None: 10 per run.
         snapshot_every: iterations between stored plans for the training figure; None: 40 per run.
-        seed: the Neural ODE's initialisation.
+        seed: the Neural ODE's initialisation (and the system-identification fit's, with ``init="sysid"``).
+        init: where theta starts: ``"guess"`` (the spec's guesses; a Neural ODE's random weights, normalised by the
+            bounds), ``"sysid"`` (fitted first by system identification, :func:`~myriad.runtime.sysid.run.run_sysid`
+            with ``SysidConfig(model, hidden, activation, seed, rounds=1)``: "the same objects as system
+            identification"), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
+            ``run_e2e(theta0=...)`` starts from given parameters instead.
     """
 
     model: str = "parametric"
@@ -85,6 +93,7 @@ class E2EConfig:
     checkpoint_every: int | None = None
     snapshot_every: int | None = None
     seed: int = 0
+    init: Any = "guess"
 
     def __post_init__(self):
         for name, allowed in (("model", MODELS), ("gradient", GRADIENTS), ("loss", LOSSES),
@@ -119,6 +128,34 @@ class E2EConfig:
             if v is not None and not isinstance(v, Extragradient):
                 raise ValueError(f"E2EConfig: {name} must be an Extragradient, got {type(v).__name__}")
         object.__setattr__(self, "hidden", tuple(int(w) for w in self.hidden))
+        self._check_init()
+
+    def _check_init(self) -> None:
+        from ..sysid.run import SysidConfig  # lazily: the sysid runner is only needed for init="sysid"
+
+        init = self.init
+        if isinstance(init, str) and init in INITS:
+            return
+        if not isinstance(init, SysidConfig):
+            raise ValueError(f"E2EConfig(init={init!r}): expected one of {INITS} or a SysidConfig")
+        mine = {"model": self.model, "hidden": self.hidden, "activation": self.activation}
+        theirs = {"model": init.model, "hidden": tuple(init.hidden), "activation": init.activation}
+        if init.model == "parametric":
+            mine, theirs = {"model": self.model}, {"model": init.model}
+        differ = sorted(k for k in mine if mine[k] != theirs[k])
+        if differ:
+            raise ValueError(f"E2EConfig: init's SysidConfig must fit the model learned here; it differs in {differ} "
+                             f"({ {k: theirs[k] for k in differ} } against { {k: mine[k] for k in differ} })")
+
+    def sysid_config(self) -> Any:
+        """The system-identification configuration that fits the start (``init`` not ``"guess"``), else None."""
+        from ..sysid.run import SysidConfig
+
+        if isinstance(self.init, SysidConfig):
+            return self.init
+        if self.init == "guess":
+            return None
+        return SysidConfig(model=self.model, hidden=self.hidden, activation=self.activation, seed=self.seed, rounds=1)
 
     def identity(self, system: str) -> tuple[str, dict]:
         """``(sha256, description)`` of what fixes the sequence of iterates (not ``iterations``,

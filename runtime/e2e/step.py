@@ -10,9 +10,10 @@ problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(t
   skipped, or ``g`` comes from K unrolled steps started at the unconverged iterate (``on_failure``);
 
 then ``tr <- tr + optax_update(g)``. ``loss`` is the mean over the grid's nodes of ``||u - u*||^2`` (controls),
-``||x - x*||^2`` (the model's planned states against the expert's), or their sum. A step whose loss or gradient is
-not finite is never applied (and the learner stops). Every input is an array (the reset flag too), so the program
-is traced once per (model, NLP, configuration, shapes); ``TRACES`` counts the traces.
+``||x - x*||^2`` (the model's planned states against the expert's), or their sum (the mode's weights are an input: one
+program serves all three). A step whose loss or gradient is not finite is never applied (and the learner stops). Every
+input is an array (the reset flag too), so the program is traced once per (model, NLP, configuration, shapes);
+``TRACES`` counts the traces.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
 
-__all__ = ["Metrics", "Program", "TRACES", "USED"]
+__all__ = ["Metrics", "Program", "TRACES", "USED", "loss_weights"]
 
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
@@ -73,15 +74,16 @@ class Program:
         theta = self.model.combine(train["model"], frozen["model"])
         return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
 
-    def loss(self, z: Any, data: ProblemData) -> tuple[jax.Array, tuple]:
+    def loss(self, z: Any, data: ProblemData, weights: Any) -> tuple[jax.Array, tuple]:
+        """``w_u mean ||u - u*||^2 + w_x mean ||x - x*||^2`` with ``weights = (w_u, w_x)`` (:func:`loss_weights`): an
+        input, so the three modes share one compiled program; a term of weight 0 is left out, not multiplied."""
         _, states, controls = self.nlp.unravel(z, data)
         u_star, x_star = self.expert
-        terms = []
-        if self.config.loss in ("controls", "both"):
-            terms.append(jnp.mean(jnp.sum((controls - u_star) ** 2, axis=-1)))
-        if self.config.loss in ("states", "both"):
-            terms.append(jnp.mean(jnp.sum((states - x_star) ** 2, axis=-1)))
-        return sum(terms[1:], terms[0]), (controls, states)
+        on_u = jnp.mean(jnp.sum((controls - u_star) ** 2, axis=-1))
+        on_x = jnp.mean(jnp.sum((states - x_star) ** 2, axis=-1))
+        w_u, w_x = weights[0], weights[1]
+        value = jnp.where(w_u > 0, w_u * on_u, 0.0) + jnp.where(w_x > 0, w_x * on_x, 0.0)
+        return value, (controls, states)
 
     def init_opt(self, train: Any) -> Any:
         with optax_promotion():
@@ -100,7 +102,7 @@ class Program:
         def objective(tr):
             data = self.data(tr, frozen, consts)
             new = self.planner.run(state, data, self.config.unroll)
-            value, plan = self.loss(self.planner.z(new), data)
+            value, plan = self.loss(self.planner.z(new), data, consts["loss"])
             return value, (new, plan)
 
         (value, (new, plan)), grad = jax.value_and_grad(objective, has_aux=True)(train)
@@ -110,7 +112,7 @@ class Program:
         def objective(tr):
             data = self.data(tr, frozen, consts)
             sol = self.isolve(data.params, data.x0, z0)
-            value, plan = self.loss(sol.z, data)
+            value, plan = self.loss(sol.z, data, consts["loss"])
             return value, (sol, plan)
 
         (value, (sol, plan)), grad = jax.value_and_grad(objective, has_aux=True)(train)
@@ -153,6 +155,11 @@ class Program:
         norm = optax.tree.norm(grad)
         metrics = Metrics(value, norm, kkt, converged, jnp.where(apply, used, 3), finite, *plan)
         return keep(new_train, train), keep(new_opt, opt_state), carry, metrics
+
+
+def loss_weights(loss: str) -> jax.Array:
+    """``(w_u, w_x)`` of an ``E2EConfig.loss``: the controls' and the states' terms."""
+    return jnp.asarray([float(loss in ("controls", "both")), float(loss in ("states", "both"))], jnp.float64)
 
 
 def _all_finite(tree: Any) -> jax.Array:

@@ -34,12 +34,13 @@ from ..solve import solve
 from ..solvers import Ipopt
 from ..sysid.checkpoint import load_checkpoint, save_checkpoint
 from ..sysid.models import NeuralODE, Parametric
+from ..sysid.run import failed, run_sysid
 from ..system import System
 from ..transcriptions import SingleShooting
 from ..transcriptions.base import transcribe
 from .config import E2EConfig
 from .evaluate import E2EEvaluation, evaluate_learned
-from .step import TRACES, USED, Program
+from .step import TRACES, USED, Program, loss_weights
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
 
@@ -59,6 +60,7 @@ class E2EReport:
         counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``).
         status: ``"completed"`` or ``"non_finite"`` (the run stopped at a non-finite loss or gradient).
         compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
+        init_seconds: the system-identification fit that started the run (``init="sysid"``), else 0.
     """
 
     system: str
@@ -77,6 +79,7 @@ class E2EReport:
     train_seconds: float
     compile_count: int
     evaluation: E2EEvaluation
+    init_seconds: float = 0.0
 
     @property
     def converged(self) -> bool:
@@ -88,6 +91,8 @@ class E2EReport:
         return {"system": self.system, "model": self.config.model, "gradient": self.config.gradient,
                 "unroll": self.config.unroll, "learned": self.learned, "true": self.true,
                 "imitation_loss": json_number(last), **ev, "train_seconds": round(self.train_seconds, 3),
+                "init": "theta0" if self.init_seconds < 0 else _init_name(self.config),
+                "init_seconds": round(max(self.init_seconds, 0.0), 3),
                 "iterations": self.iterations, "seed": self.config.seed, "counts": self.counts,
                 "compile_count": self.compile_count, "status": self.status, "converged": bool(self.converged),
                 "message": self.message}
@@ -108,11 +113,19 @@ def _model(system: System, config: E2EConfig):
     return NeuralODE(system, hidden=config.hidden, activation=config.activation)
 
 
-def _learnables(system: System, model: Any, config: E2EConfig) -> tuple[Any, Any, dict, dict]:
+def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = None) -> tuple[Any, Any, dict, dict]:
     """``(train, frozen, consts, true)``: the learned leaves, the rest of theta, the spec's other parameters and x0,
     and the true values of the learned parameters (parametric and cost) by name."""
     key = jax.random.key(config.seed)
     theta = model.init_params(key, None)
+    if theta0 is not None:
+        want, got = jax.tree.structure(theta), jax.tree.structure(theta0)
+        shapes = [jnp.shape(a) for a in jax.tree.leaves(theta)]
+        if want != got or shapes != [jnp.shape(a) for a in jax.tree.leaves(theta0)]:
+            raise ValueError(f"{system.name}: theta0 does not fit the {config.model} model configured here (hidden "
+                             f"{config.hidden}, activation {config.activation!r}): expected {want} with leaves "
+                             f"{shapes}, got {got}")
+        theta = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), theta0)
     true = {}
     if isinstance(model, Parametric):
         true = {k: float(v) for k, v in model.true_params().items()}
@@ -131,7 +144,8 @@ def _learnables(system: System, model: Any, config: E2EConfig) -> tuple[Any, Any
     guess = dict(config.cost_guess)
     cost = {n: jnp.asarray(guess.get(n, 0.5 * float(spec[n])), jnp.float64) for n in config.learn_cost}
     true.update({f"cost.{n}": float(spec[n]) for n in config.learn_cost})
-    consts = {"spec": {k: v for k, v in spec.items() if k not in cost}, "x0": jnp.asarray(system.x0, jnp.float64)}
+    consts = {"spec": {k: v for k, v in spec.items() if k not in cost}, "x0": jnp.asarray(system.x0, jnp.float64),
+              "loss": loss_weights(config.loss)}
     return {"model": train_m, "cost": cost}, {"model": frozen_m}, consts, true
 
 
@@ -145,7 +159,7 @@ def _bar(progress: bool | None, total: int, initial: int, desc: str):
 
 def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(), *, transcription: Any = None,
             checkpoint_dir: str | os.PathLike | None = None, resume: bool = False, progress: bool | None = None,
-            expert: Solution | None = None) -> E2EReport:
+            expert: Solution | None = None, theta0: Any = None) -> E2EReport:
     """Learn a model (and cost weights) by imitating the expert through the planner (Algorithm 2), then judge it.
 
     Args:
@@ -156,6 +170,8 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         resume: continue from the checkpoint there (an error names what differs if it belongs to another run).
         progress: a tqdm bar with the loss on stderr; None: only when stderr is a terminal.
         expert: the expert's solution on the transcription's grid (default: the true optimum, IPOPT).
+        theta0: the model's starting parameters (e.g. a system-identification report's ``theta``); default: as
+            ``config.init`` says (a resumed run takes them from its checkpoint and fits nothing).
 
     Raises:
         TypeError, ValueError: bad arguments, all before any work; ``CheckpointMismatch`` on a foreign checkpoint.
@@ -169,11 +185,24 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     system = system if isinstance(system, System) else load(system)
     transcription = SingleShooting() if transcription is None else transcription
     model = _model(system, config)  # a parametric model refuses a spec without learnable parameters
-    train, frozen, consts, true = _learnables(system, model, config)
+    path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
+    resuming = resume and path.is_file()
+    train, frozen, consts, true = _learnables(system, model, config, theta0)  # checks theta0 before any work
     if expert is None:
         expert = solve(system, transcription, Ipopt(), resimulate=False)
     if not expert.converged:
         raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
+    fitted, start_id, init_seconds = None, None, 0.0
+    if theta0 is not None:
+        start_id, init_seconds = _tree_id(theta0), -1.0  # -1: given, not fitted here
+    elif config.sysid_config() is not None and not resuming:
+        t_init = time.perf_counter()
+        fitted = run_sysid(system, config.sysid_config(), transcription=transcription, progress=progress)
+        init_seconds = time.perf_counter() - t_init
+        if not fitted.converged:
+            raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "
+                             f"{failed(fitted)}")
+        train, frozen, consts, true = _learnables(system, model, config, fitted.theta)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), transcription)
     data0 = _data0(consts, train, frozen, model)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
@@ -183,13 +212,17 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     program = _program(model, nlp, config, expert)
     opt_state, carry = program.init_opt(train), program.init_carry(train, frozen, consts)
     config_id, desc = config.identity(system.name)
+    if start_id is not None:  # a given start is part of what fixes the iterates
+        desc = {**desc, "theta0": start_id}
+        config_id = hashlib.sha256(f"{config_id}\0{start_id}".encode()).hexdigest()
     eid = expert_id(expert, system)
     history, counts, start = [], dict.fromkeys(USED, 0), 0
-    path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
-    if resume and path.is_file():
-        ck = load_checkpoint(path, {"theta": train, "opt_state": (opt_state, carry)}, dataset_id=eid,
+    # The frozen part of theta (a Neural ODE's normalisation, set by the fit's data with init="sysid") travels with
+    # the optimiser and planner states, so a resume needs no refit.
+    if resuming:
+        ck = load_checkpoint(path, {"theta": train, "opt_state": (opt_state, carry, frozen)}, dataset_id=eid,
                              config_id=config_id, config=desc)
-        train, (opt_state, carry), start, history = ck.theta, ck.opt_state, ck.epoch, ck.history
+        train, (opt_state, carry, frozen), start, history = ck.theta, ck.opt_state, ck.epoch, ck.history
         counts.update({k: int(ck.extra.get(k, 0)) for k in USED})
     every = config.checkpoint_every or max(1, config.iterations // 10)
     snap_every = config.snapshot_every or max(1, config.iterations // 40)
@@ -198,7 +231,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     bar = _bar(progress, config.iterations, start, f"{system.name} e2e ({config.model}, {config.gradient})")
 
     def save(it):
-        save_checkpoint(path, theta=train, opt_state=(opt_state, carry), key=jax.random.key_data(
+        save_checkpoint(path, theta=train, opt_state=(opt_state, carry, frozen), key=jax.random.key_data(
             jax.random.key(config.seed)), epoch=it, best_theta=train, best_val=min((h[1] for h in history),
                                                                                    default=math.inf),
             history=history, dataset_id=eid, config_id=config_id, config=desc, extra=counts)
@@ -243,7 +276,20 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     return E2EReport(system=system.name, config=config, model=model, theta=theta, spec_params=spec_params,
                      learned=learned, true=true, history=history, snapshots=snapshots, counts=counts, status=status,
                      message=message or evaluation.message, iterations=len(history), train_seconds=seconds,
-                     compile_count=TRACES["iteration"] - traces, evaluation=evaluation)
+                     compile_count=TRACES["iteration"] - traces, evaluation=evaluation, init_seconds=init_seconds)
+
+
+def _init_name(config: E2EConfig) -> str:
+    return config.init if isinstance(config.init, str) else "sysid"
+
+
+def _tree_id(tree: Any) -> str:
+    """A SHA-256 of a pytree's structure and float64 leaves (a given theta0's identity in checkpoints)."""
+    h = hashlib.sha256(str(jax.tree.structure(tree)).encode())
+    for a in jax.tree.leaves(tree):
+        a = np.ascontiguousarray(np.asarray(a), dtype="<f8")
+        h.update(f"{a.shape}".encode() + a.tobytes())
+    return h.hexdigest()
 
 
 def _data0(consts, train, frozen, model):
@@ -258,8 +304,10 @@ _PROGRAMS: dict = {}
 
 def _program(model, nlp, config, expert) -> Program:
     """One compiled program per (model, NLP, configuration, expert): a second run of the same reuses it."""
-    # iterations, checkpoint_every and snapshot_every do not enter the compiled iteration.
-    same = dataclasses.replace(config, iterations=1, checkpoint_every=None, snapshot_every=None)
+    # iterations, checkpoint_every, snapshot_every, where theta started and the loss's mode (its weights are an
+    # input) do not enter the compiled iteration.
+    same = dataclasses.replace(config, iterations=1, checkpoint_every=None, snapshot_every=None, init="guess",
+                               loss="controls")
     key = (model, id(nlp), same, expert_id(expert, model.system))
     if key not in _PROGRAMS:
         _PROGRAMS.clear()  # keep one: each holds compiled code
