@@ -39,6 +39,11 @@ def add_parser(sub) -> None:
                         "(rounds 1; measured for Neural ODEs in docs/notes/e2e-node.md)")
     s.add_argument("--hidden", type=int, nargs="+", default=None, metavar="W",
                    help="node: hidden widths (default 50 50, the published Cancer Treatment network)")
+    s.add_argument("--expert", metavar="FILE.npz", default=None,
+                   help="imitate a recorded trajectory of a system-identification dataset (made with x0_std 0 on "
+                        "the --intervals grid) instead of the true optimum")
+    s.add_argument("--expert-split", choices=["train", "validation", "test"], default="train")
+    s.add_argument("--expert-index", type=int, default=0, metavar="I", help="which trajectory of the split (0)")
     s.add_argument("--seed", type=int, default=0, metavar="S")
     add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 
@@ -74,8 +79,17 @@ def run(args) -> int:
     from ..transcriptions import SingleShooting
     from .train import run_e2e
 
-    report = run_e2e(system, config, transcription=SingleShooting(controls=args.intervals),
-                     checkpoint_dir=args.checkpoint, resume=args.resume)
+    transcription, expert = SingleShooting(controls=args.intervals), None
+    if args.expert is not None:
+        from .expert import expert_from_dataset
+
+        try:
+            expert = expert_from_dataset(args.expert, system, transcription, split=args.expert_split,
+                                         index=args.expert_index)
+        except (OSError, ValueError) as exc:
+            return _usage(str(exc))
+    report = run_e2e(system, config, transcription=transcription, checkpoint_dir=args.checkpoint,
+                     resume=args.resume, expert=expert)
     rec = report.record()
     print(f"{report.system}: {config.model} model, {config.gradient} gradients (K = {config.unroll}), "
           f"{report.iterations} iterations in {report.train_seconds:.1f} s ({report.status})")

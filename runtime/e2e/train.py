@@ -40,6 +40,7 @@ from ..transcriptions import SingleShooting
 from ..transcriptions.base import transcribe
 from .config import E2EConfig
 from .evaluate import E2EEvaluation, evaluate_learned
+from .expert import expert_from_dataset
 from .step import TRACES, USED, Program, loss_weights
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
@@ -159,7 +160,7 @@ def _bar(progress: bool | None, total: int, initial: int, desc: str):
 
 def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(), *, transcription: Any = None,
             checkpoint_dir: str | os.PathLike | None = None, resume: bool = False, progress: bool | None = None,
-            expert: Solution | None = None, theta0: Any = None) -> E2EReport:
+            expert: Solution | str | os.PathLike | None = None, theta0: Any = None) -> E2EReport:
     """Learn a model (and cost weights) by imitating the expert through the planner (Algorithm 2), then judge it.
 
     Args:
@@ -169,7 +170,9 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``); None: none.
         resume: continue from the checkpoint there (an error names what differs if it belongs to another run).
         progress: a tqdm bar with the loss on stderr; None: only when stderr is a terminal.
-        expert: the expert's solution on the transcription's grid (default: the true optimum, IPOPT).
+        expert: the expert's solution on the transcription's grid (default: the true optimum, IPOPT), or a
+            system-identification dataset file whose first training trajectory is the expert
+            (:func:`~myriad.runtime.e2e.expert.expert_from_dataset` picks another).
         theta0: the model's starting parameters (e.g. a system-identification report's ``theta``); default: as
             ``config.init`` says (a resumed run takes them from its checkpoint and fits nothing).
 
@@ -188,6 +191,8 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
     resuming = resume and path.is_file()
     train, frozen, consts, true = _learnables(system, model, config, theta0)  # checks theta0 before any work
+    if isinstance(expert, (str, os.PathLike)):
+        expert = expert_from_dataset(expert, system, transcription)
     if expert is None:
         expert = solve(system, transcription, Ipopt(), resimulate=False)
     if not expert.converged:

@@ -1,0 +1,80 @@
+"""The expert Algorithm 2 imitates when it is not the true optimum: one recorded trajectory of a
+system-identification dataset (:mod:`myriad.runtime.sysid.dataset`).
+
+    expert = expert_from_dataset("data/cancer.npz", "cancer_treatment", split="train", index=0)
+    run_e2e("cancer_treatment", E2EConfig(model="node", init="sysid"), expert=expert)
+
+A dataset made with ``Sampling(controls="around", spread=0.0, x0_std=0.0, noise=...)`` around a plan is the usual
+source: the expert's controls replayed exactly, its states observed with noise. The recorded trajectory must start at
+the spec's x0 (the planner plans from there), so a dataset with perturbed starts (``x0_std > 0``) is refused, as is a
+grid other than the transcription's. The expert's ``cost`` and ``defect`` are those of its controls applied to the
+true system by the transcription's integrator: what the learned plan is compared with.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from ..data import default_data
+from ..loader import load
+from ..simulate import simulate
+from ..solution import Solution
+from ..status import Status
+from ..sysid.dataset import Dataset, load_dataset
+from ..system import System
+from ..transcriptions import SingleShooting
+
+__all__ = ["expert_from_dataset"]
+
+SPLITS = ("train", "validation", "test")
+
+
+def expert_from_dataset(dataset: Dataset | str | os.PathLike, system: System | str | os.PathLike,
+                        transcription: Any = None, *, split: str = "train", index: int = 0) -> Solution:
+    """Trajectory ``index`` of ``split`` as a converged :class:`Solution` on ``transcription``'s grid.
+
+    Raises:
+        ValueError: another spec's dataset (both hashes named), an unknown split or an index out of range, perturbed
+            starts, or a grid that is not the transcription's (a shooting transcription with ``controls`` equal to
+            the dataset's intervals, uniform, on the spec's horizon); all before any work.
+    """
+    system = system if isinstance(system, System) else load(system)
+    source = "the given dataset"
+    if not isinstance(dataset, Dataset):
+        source = str(dataset)
+        dataset = load_dataset(dataset, system)  # checks the spec's hash against the sidecar's
+    elif dataset.spec_sha256 != system.spec_sha256:
+        raise ValueError(f"expert: the dataset was generated from {dataset.system!r} (spec sha256 "
+                         f"{dataset.spec_sha256}), not from {system.name!r} (spec sha256 {system.spec_sha256})")
+    if split not in SPLITS:
+        raise ValueError(f"expert: split must be one of {SPLITS}, got {split!r}")
+    trajectories = getattr(dataset, split)
+    count = trajectories.controls.shape[0]
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < count:
+        raise ValueError(f"expert: index must be an integer in [0, {count}) for the {count} {split} trajectories "
+                         f"of {source}, got {index!r}")
+    if dataset.sampling.x0_std > 0:
+        raise ValueError(f"expert: {source} was sampled with perturbed starts (x0_std={dataset.sampling.x0_std:g}); "
+                         f"the planner starts at the spec's x0, so make the expert's dataset with x0_std=0")
+    transcription = SingleShooting() if transcription is None else transcription
+    n_controls = getattr(transcription, "controls", None)
+    if n_controls != dataset.intervals or getattr(transcription, "grid", None) is not None:
+        raise ValueError(f"expert: {source} is on a uniform grid of {dataset.intervals} intervals; the transcription "
+                         f"{type(transcription).__name__}(controls={n_controls}) must be a uniform shooting grid of "
+                         f"as many (e.g. SingleShooting(controls={dataset.intervals}))")
+    if not np.isclose(dataset.horizon, float(system.horizon), rtol=1e-12, atol=0.0):
+        raise ValueError(f"expert: {source} covers [0, {dataset.horizon:g}], the spec's horizon is "
+                         f"{float(system.horizon):g}")
+    controls = np.array(trajectories.controls[index])
+    states = np.array(trajectories.states[index])
+    data = default_data(system)
+    sim = simulate(system, controls, data.params, data.x0, integrator=transcription.integrator)
+    defect = [float(d) for d in np.asarray(sim.defect)[system.final_mask]]
+    return Solution(system=system.name, transcription=type(transcription).__name__, solver="dataset",
+                    integrator=transcription.integrator.label, times=np.array(dataset.times), states=states,
+                    controls=controls, cost=float(sim.cost), defect=defect, converged=True, status=Status.CONVERGED,
+                    message=f"recorded trajectory {split}[{index}] of {source} (seed {dataset.seed})", iterations=0,
+                    constraint_violation=0.0, intervals=dataset.intervals, final_time=float(system.horizon))
