@@ -5,7 +5,7 @@
         backward pass at a converged plan (and the forward solve it needs), published grid (100 controls)
     python bench/e2e_table.py learn SYSTEM... [--model parametric|node] [--gradient unrolled|implicit] [--unroll K]
             [--iterations N] [--lr LR] [--reset-every R] [--init guess|sysid] [--hidden W W] [--seed S]
-            [--json FILE] [--markdown FILE]
+            [--implicit-solver interior_point|extragradient] [--json FILE] [--markdown FILE]
         parametric: learned against true parameters, the plan's cost on the true system against the optimum, time per
         system (published: about 0.5 h per system on a laptop). node: Table D side by side with the published
         figures (achieved cost, defect, imitation loss, time per system; published: about 10 h per system), each
@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 from myriad.runtime import load  # noqa: E402
 from myriad.runtime.data import ProblemData, default_data  # noqa: E402
 from myriad.runtime.e2e import E2EConfig, UnrolledPlanner, make_implicit_solve, run_e2e  # noqa: E402
+from myriad.runtime.solvers.interior_point import InteriorPoint  # noqa: E402
 from myriad.runtime.sysid.models import Parametric  # noqa: E402
 from myriad.runtime.transcriptions import SingleShooting  # noqa: E402
 from myriad.runtime.transcriptions.base import transcribe  # noqa: E402
@@ -138,9 +139,10 @@ def node_row(name: str, args) -> dict:
     t0 = time.perf_counter()
     width = args.hidden or (TABLE_D.get(name, (None, None, 100))[2],) * 2
     try:
+        solver = InteriorPoint() if args.implicit_solver == "interior_point" else None
         config = E2EConfig(model="node", gradient=args.gradient, unroll=args.unroll, iterations=args.iterations,
                            optimizer=args.lr, reset_every=args.reset_every, init=args.init, hidden=tuple(width),
-                           seed=args.seed)
+                           seed=args.seed, implicit_solver=solver)
         report = run_e2e(name, config, progress=False)
     except Exception as exc:  # noqa: BLE001 -- never lose the table
         return {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
@@ -199,7 +201,8 @@ def node_table(rows) -> tuple[str, list[str]]:
 
 
 def learn_node(names, args) -> None:
-    setting = (f"Neural ODE, {args.gradient} gradients (K = {args.unroll or 5}), {args.iterations} iterations, Adam "
+    solve = f" solved by {args.implicit_solver}" if args.gradient == "implicit" else f" (K = {args.unroll or 5})"
+    setting = (f"Neural ODE, {args.gradient} gradients{solve}, {args.iterations} iterations, Adam "
                f"{args.lr:g}, reset every {args.reset_every}, init {args.init}, seed {args.seed}; single shooting, "
                f"100 controls, Heun")
     print(f"machine: {_machine()}\nsetting: {setting}")
@@ -239,6 +242,9 @@ def main() -> None:
     lr.add_argument("--init", choices=["guess", "sysid"], default="sysid", help="node: where theta starts")
     lr.add_argument("--hidden", type=int, nargs="+", default=None, help="node: widths (default: Table D's)")
     lr.add_argument("--seed", type=int, default=0)
+    lr.add_argument("--implicit-solver", choices=["interior_point", "extragradient"], default="interior_point",
+                    help="node, implicit gradients: the solve to tolerance (default interior_point: Newton steps; the "
+                         "extragradient needs thousands of steps per solve where final values are required)")
     lr.add_argument("--json", metavar="FILE")
     lr.add_argument("--markdown", metavar="FILE")
     args = p.parse_args()

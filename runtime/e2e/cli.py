@@ -33,6 +33,9 @@ def add_parser(sub) -> None:
     s.add_argument("--lr", type=float, default=None, metavar="LR", help="Adam's learning rate (default 1e-2)")
     s.add_argument("--on-failure", choices=["skip", "unrolled"], default="skip",
                    help="implicit mode: when a solve does not converge, skip the step or unroll instead")
+    s.add_argument("--implicit-solver", choices=["extragradient", "interior_point"], default="extragradient",
+                   help="implicit mode: the solve to tolerance (interior_point: Newton steps, much faster where final "
+                        "values are required; docs/notes/e2e-node.md)")
     s.add_argument("--learn-cost", nargs="+", default=(), metavar="NAME", help="also learn these cost weights")
     s.add_argument("--init", choices=["guess", "sysid"], default="guess",
                    help="where theta starts: the spec's guesses / random weights, or a system-identification fit "
@@ -52,6 +55,14 @@ def _usage(message: str) -> int:
     return usage("e2e", message)
 
 
+def _implicit_solver(name: str):
+    if name == "interior_point":
+        from ..solvers.interior_point import InteriorPoint
+
+        return InteriorPoint()
+    return None  # the configuration's default extragradient
+
+
 def run(args) -> int:
     from .config import E2EConfig
 
@@ -64,7 +75,7 @@ def run(args) -> int:
     try:
         config = E2EConfig(model=args.model, gradient=args.gradient, on_failure=args.on_failure,
                            learn_cost=tuple(args.learn_cost), seed=args.seed, reset_every=args.reset_every,
-                           init=args.init, **options)
+                           init=args.init, implicit_solver=_implicit_solver(args.implicit_solver), **options)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..solvers.extragradient import Extragradient
+from ..solvers.interior_point import InteriorPoint
 from ..sysid.checkpoint import describe
 
 __all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
@@ -63,8 +64,9 @@ class E2EConfig:
         hidden, activation: the Neural ODE's network.
         planner: the :class:`Extragradient` whose step rules, penalty, bounds and scaling the unrolled planner uses
             (None: :func:`~.planner.default_planner_solver`).
-        implicit_solver: the :class:`Extragradient` run to tolerance in implicit mode (None: tol 1e-9, 20,000
-            iterations).
+        implicit_solver: the solver run to tolerance in implicit mode: an :class:`Extragradient` (None: tol 1e-9,
+            20,000 iterations) or an :class:`InteriorPoint` (Newton steps: tens of iterations where the extragradient
+            needs thousands, e.g. on problems with required final values; docs/notes/e2e-node.md).
         checkpoint_every: iterations between checkpoints (with a checkpoint folder); None: 10 per run.
         snapshot_every: iterations between stored plans for the training figure; None: 40 per run.
         seed: the Neural ODE's initialisation (and the system-identification fit's, with ``init="sysid"``).
@@ -89,7 +91,7 @@ class E2EConfig:
     hidden: tuple[int, ...] = (50, 50)
     activation: str = "tanh"
     planner: Extragradient | None = None
-    implicit_solver: Extragradient | None = None
+    implicit_solver: Extragradient | InteriorPoint | None = None
     checkpoint_every: int | None = None
     snapshot_every: int | None = None
     seed: int = 0
@@ -123,10 +125,11 @@ class E2EConfig:
             raise ValueError(f"E2EConfig: cost_guess names {sorted(unknown)}, which are not in learn_cost")
         if not self.learn_dynamics and not self.learn_cost:
             raise ValueError("E2EConfig: nothing to learn (learn_dynamics=False and no learn_cost)")
-        for name in ("planner", "implicit_solver"):
-            v = getattr(self, name)
-            if v is not None and not isinstance(v, Extragradient):
-                raise ValueError(f"E2EConfig: {name} must be an Extragradient, got {type(v).__name__}")
+        if self.planner is not None and not isinstance(self.planner, Extragradient):
+            raise ValueError(f"E2EConfig: planner must be an Extragradient, got {type(self.planner).__name__}")
+        if self.implicit_solver is not None and not isinstance(self.implicit_solver, (Extragradient, InteriorPoint)):
+            raise ValueError(f"E2EConfig: implicit_solver must be an Extragradient or an InteriorPoint, got "
+                             f"{type(self.implicit_solver).__name__}")
         object.__setattr__(self, "hidden", tuple(int(w) for w in self.hidden))
         self._check_init()
 

@@ -38,6 +38,8 @@ from ..data import ProblemData
 from ..nlp import NLP
 from ..solvers.base import ScaledProblem
 from ..solvers.extragradient import Extragradient
+from ..solvers.interior_point import InteriorPoint
+from ..status import Status
 
 __all__ = ["ImplicitSolve", "kkt_vjp", "make_implicit_solve"]
 
@@ -105,19 +107,25 @@ def kkt_vjp(problem: ScaledProblem, data: ProblemData, z: Any, z_bar: Any) -> tu
     return jax.tree.map(nan, params_bar), nan(x0_bar), ok
 
 
-def make_implicit_solve(nlp: NLP, solver: Extragradient | None = None) -> Callable[[Any, Any, Any], ImplicitSolve]:
+def make_implicit_solve(nlp: NLP, solver: Extragradient | InteriorPoint | None = None
+                        ) -> Callable[[Any, Any, Any], ImplicitSolve]:
     """``(params, x0, z0) -> ImplicitSolve``: the solver's pure solve from ``z0``, differentiable in ``params`` and
     ``x0`` by the implicit function theorem (reverse mode, ``jax.custom_vjp``); the start gets a zero cotangent.
 
     Args:
         nlp: the problem; solver: an :class:`Extragradient` run to its tolerance (default ``tol=1e-9``, 20,000
-            iterations: the implicit derivative is only as accurate as the solution).
+            iterations: the implicit derivative is only as accurate as the solution), or an :class:`InteriorPoint`,
+            whose pure solve carries its own implicit rule (:mod:`~myriad.runtime.solvers.interior_point.implicit`,
+            the same equations with the solver's multipliers and active sets).
 
     A non-converged solve returns NaN cotangents (never a silent gradient); check ``converged``.
     """
     solver = Extragradient(tol=1e-9, max_iter=20_000) if solver is None else solver
+    if isinstance(solver, InteriorPoint):
+        return _interior_point_solve(nlp, solver)
     if not isinstance(solver, Extragradient):
-        raise TypeError(f"make_implicit_solve: expected an Extragradient, got {type(solver).__name__}")
+        raise TypeError(f"make_implicit_solve: expected an Extragradient or an InteriorPoint, got "
+                        f"{type(solver).__name__}")
     raw = solver.pure_solve(nlp)
     problem = ScaledProblem.from_nlp(nlp)
 
@@ -143,3 +151,15 @@ def make_implicit_solve(nlp: NLP, solver: Extragradient | None = None) -> Callab
     return solve
 
 
+
+
+def _interior_point_solve(nlp: NLP, solver: InteriorPoint) -> Callable[[Any, Any, Any], ImplicitSolve]:
+    # The interior point's pure solve is differentiable already (NaN cotangents unless converged); the start is a
+    # warm start only, so it gets a zero cotangent like the extragradient's.
+    raw = solver.pure_solve(nlp)
+
+    def solve(params, x0, z0):
+        out = raw(ProblemData(params, x0), jax.lax.stop_gradient(z0))
+        return ImplicitSolve(out.z, out.status == int(Status.CONVERGED), out.iterations, out.violation)
+
+    return solve

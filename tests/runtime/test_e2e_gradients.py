@@ -16,6 +16,7 @@ from myriad.runtime import load
 from myriad.runtime.data import ProblemData, default_data
 from myriad.runtime.e2e import UnrolledPlanner, default_planner_solver, make_implicit_solve
 from myriad.runtime.solvers import Extragradient
+from myriad.runtime.solvers.interior_point import InteriorPoint
 from myriad.runtime.sysid.models import Parametric
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
@@ -109,3 +110,21 @@ def test_a_solve_that_did_not_converge_gives_nan_never_a_silent_gradient(cancer)
     (_, converged), grad = jax.jit(jax.value_and_grad(value, has_aux=True))(c["theta"])
     assert not bool(converged)
     assert all(np.isnan(float(v)) for v in grad.values())
+
+
+def test_the_interior_point_as_implicit_solver_matches_the_converged_solution_map(cancer):
+    # Newton steps from the transcription's guess (no warm state needed), the solver's own implicit rule.
+    c = cancer
+    data, data_of, w, theta = c["data"], c["data_of"], c["w"], c["theta"]
+    isolve = make_implicit_solve(c["nlp"], InteriorPoint(tol=1e-11))
+    z0 = c["nlp"].initial_guess(data)
+
+    def value(th):
+        out = isolve(data_of(th).params, data.x0, z0)
+        return jnp.dot(w, out.z), (out.converged, out.iterations)
+
+    solution = jax.jit(jax.value_and_grad(value, has_aux=True))
+    (_, (converged, iterations)), implicit = solution(theta)
+    assert bool(converged) and int(iterations) < 100, int(iterations)
+    fd = _fd(lambda th: solution(th)[0][0], theta, 1e-5)
+    assert _relative(implicit, fd) < 1e-4, (implicit, fd)
