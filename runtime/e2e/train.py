@@ -101,11 +101,7 @@ class E2EReport:
 
 def expert_id(expert: Solution, system: System) -> str:
     """A SHA-256 of the expert trajectory and the spec: what a checkpoint's run imitated."""
-    h = hashlib.sha256(f"{system.name}\0{system.spec_sha256}\0".encode())
-    for a in (expert.controls, expert.states):
-        a = np.ascontiguousarray(a, dtype="<f8")
-        h.update(f"{a.shape}".encode() + a.tobytes())
-    return h.hexdigest()
+    return _arrays_id(f"{system.name}\0{system.spec_sha256}\0", (expert.controls, expert.states))
 
 
 def _model(system: System, config: E2EConfig):
@@ -290,8 +286,13 @@ def _init_name(config: E2EConfig) -> str:
 
 def _tree_id(tree: Any) -> str:
     """A SHA-256 of a pytree's structure and float64 leaves (a given theta0's identity in checkpoints)."""
-    h = hashlib.sha256(str(jax.tree.structure(tree)).encode())
-    for a in jax.tree.leaves(tree):
+    return _arrays_id(str(jax.tree.structure(tree)), jax.tree.leaves(tree))
+
+
+def _arrays_id(head: str, arrays: Any) -> str:
+    """SHA-256 of ``head`` then each array's shape and little-endian float64 bytes."""
+    h = hashlib.sha256(head.encode())
+    for a in arrays:
         a = np.ascontiguousarray(np.asarray(a), dtype="<f8")
         h.update(f"{a.shape}".encode() + a.tobytes())
     return h.hexdigest()
