@@ -12,7 +12,8 @@ the planner's feasibility tolerance is ~1e-6 on its own model, and the true roll
 timing max / median. An exception in one system is recorded as its failure; the table is always printed.
 
 Usage: python bench/sysid_table.py --model parametric|node [--systems NAME ...] [--noise F] [--trajectories N]
-       [--rounds K] [--epochs E] [--seed S] [--method least_squares|adam] [--json FILE] [--markdown FILE]
+       [--rounds K] [--epochs E] [--anchor-weight W] [--reaim K] [--seed S] [--method least_squares|adam]
+       [--json FILE] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from myriad.runtime import load  # noqa: E402
 from myriad.runtime.simulate import simulate  # noqa: E402
 from myriad.runtime.sysid import run as sysid_run  # noqa: E402
 from myriad.runtime.sysid.fit import FitConfig  # noqa: E402
+from myriad.runtime.sysid.polish import PolishConfig  # noqa: E402
 from myriad.runtime.sysid.run import SysidConfig, failed, run_sysid  # noqa: E402
 from myriad.runtime.systems import NAMES  # noqa: E402
 from myriad.runtime.transcriptions import default_data, state_scale  # noqa: E402
@@ -277,6 +279,10 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=None, metavar="K", help="datasets in sequence (default: the "
                     "library's for the model)")
     ap.add_argument("--epochs", type=int, default=None, metavar="E", help="adam: the most epochs")
+    ap.add_argument("--anchor-weight", type=float, default=None, metavar="W", help="node: the polish's anchor "
+                    "weight (default: the library's PolishConfig)")
+    ap.add_argument("--reaim", type=int, default=None, metavar="K", help="re-aims of the final plan (default: the "
+                    "library's for the model)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", metavar="FILE"), ap.add_argument("--markdown", metavar="FILE")
     args = ap.parse_args(argv)
@@ -289,6 +295,10 @@ def main(argv=None) -> int:
     if args.epochs is not None:  # as `myriad sysid --epochs`: the Neural ODE recipe where the library has one
         recipe = getattr(sysid_run, "node_fit_config", None) if args.model == "node" else None
         kw["fit"] = recipe(args.epochs) if recipe else dataclasses.replace(FitConfig(), epochs=args.epochs)
+    if args.reaim is not None:
+        kw["reaim"] = args.reaim
+    if args.anchor_weight is not None:
+        kw["polish"] = PolishConfig(anchor_weight=args.anchor_weight)
     try:
         config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
                              noise=args.noise, seed=args.seed, **kw)
@@ -296,7 +306,8 @@ def main(argv=None) -> int:
         ap.error(str(exc))
     noisy = args.noise > 0
     setting = (f"model {config.model} by {config.method}, {config.trajectories} training trajectories, "
-               f"{config.rounds} dataset(s), noise {config.noise:g}, seed {config.seed}"
+               f"{config.rounds} dataset(s), noise {config.noise:g}, seed {config.seed}, {config.reaim} re-aims"
+               + (f", anchor weight {config.polish.anchor_weight:g}" if config.polish else "")
                + (f", epochs {config.fit.epochs}" if config.method == "adam" else ""))
     print(f"machine: {machine()}\nsetting: {setting}; planning in the published setting (single shooting, Heun, 100 "
           f"controls, IPOPT)")

@@ -69,7 +69,7 @@ class Evaluation:
 
 
 def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=None,
-             optimum: Solution | None = None) -> Evaluation:
+             optimum: Solution | None = None, plan: Solution | None = None) -> Evaluation:
     """Plan on ``model.as_system(theta)``, apply the plan to ``model.system``, and compare with the true optimum.
 
     Args:
@@ -78,9 +78,12 @@ def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=Non
         transcription, solver: the planning setting (default: the published one, single shooting with Heun on
             100 intervals and IPOPT); the true optimum is computed in the same setting unless ``optimum`` is given.
         optimum: the true model's solution, when already known (saves a solve).
+        plan: a plan on the model already made in this setting (e.g. re-aimed, :mod:`.reaim`), to judge instead of
+            planning again.
     """
     true: System = model.system
-    plan = solve(model.as_system(theta), transcription, solver, resimulate=False)
+    if plan is None:
+        plan = solve(model.as_system(theta), transcription, solver, resimulate=False)
     if optimum is None:
         optimum = solve(true, transcription, solver, resimulate=False)
     data = default_data(true)

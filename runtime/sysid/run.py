@@ -27,6 +27,7 @@ from .fit import FitConfig, fit
 from .least_squares import least_squares
 from .models import NeuralODE, Parametric
 from .polish import PolishConfig, polish
+from .reaim import Reaim, observe, reaim
 
 __all__ = ["SysidConfig", "SysidReport", "node_fit_config", "run_sysid"]
 
@@ -53,6 +54,9 @@ class SysidConfig:
         polish: an L-BFGS polish after every round's Adam fit, with the true trajectories of the earlier rounds'
             plans as anchors (:mod:`.polish`); ``"default"``:
             ``PolishConfig()`` for a Neural ODE, None (no polish) for a parametric model.
+        reaim: after the last round, re-aim the plan at the required final values this many times from observed
+            runs of the true system (:mod:`.reaim`); None: 3 for a Neural ODE, 0 for a parametric model (its plan
+            is the true model's once the parameters are recovered).
     """
 
     model: str = "parametric"
@@ -66,6 +70,7 @@ class SysidConfig:
     fit: FitConfig | None = None
     sampling: Sampling = Sampling()
     polish: Any = "default"
+    reaim: int | None = None
 
     def __post_init__(self):
         if self.model not in _MODELS:
@@ -85,6 +90,10 @@ class SysidConfig:
         if self.polish is not None and (not isinstance(self.polish, PolishConfig) or method != "adam"):
             raise ValueError(f"SysidConfig: polish must be a PolishConfig (with method='adam') or None, got "
                              f"{self.polish!r}")
+        if self.reaim is None:
+            object.__setattr__(self, "reaim", 3 if self.model == "node" else 0)
+        if isinstance(self.reaim, bool) or not isinstance(self.reaim, int) or self.reaim < 0:
+            raise ValueError(f"SysidConfig: reaim must be an integer >= 0, got {self.reaim!r}")
         if self.trajectories < 1 or self.rounds < 1:
             raise ValueError("SysidConfig: trajectories and rounds must be at least 1")
         if not (self.noise >= 0 and math.isfinite(self.noise)):
@@ -113,6 +122,7 @@ class SysidReport:
     dataset: Dataset
     rounds: int
     polish: tuple = ()
+    reaim: Reaim | None = None
 
     @property
     def converged(self) -> bool:
@@ -132,6 +142,7 @@ class SysidReport:
             "rounds": self.rounds, "fit_status": self.fit_status, "fit_message": self.fit_message,
             "converged": bool(self.converged), "message": failed(self) or ev["message"],
             "polish": [p.record() for p in self.polish],
+            "reaim": None if self.reaim is None else self.reaim.record(),
         }
 
 
@@ -187,9 +198,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
                                 seed=config.seed + r, around=around)
             dataset = _merge(dataset, more)
             if config.polish is not None:  # the plan's own true trajectory, observed like the rest of the data
-                exact = dataclasses.replace(sampling, controls="around", spread=0.0, x0_std=0.0, smooth=False)
-                anchor = make_dataset(system, exact, trajectories=(1, 0, 0), seed=config.seed + r + 10**6,
-                                      around=around).train  # (its own noise draws: another seed)
+                anchor = observe(system, sampling, around, seed=config.seed + r + 10**6)  # (its own noise draws)
                 anchors = anchor if anchors is None else _cat(anchors, anchor)
         t0 = time.perf_counter()
         if config.method == "least_squares":
@@ -221,6 +230,15 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
                     message += f"; round {r}: {polished.message}"
         seconds += time.perf_counter() - t0
         evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum)
+    aimed = None
+    if config.reaim and evaluation.plan.converged:
+        t0 = time.perf_counter()
+        aimed = reaim(model, theta, evaluation.plan, sampling, iterations=config.reaim, seed=config.seed + 2 * 10**6,
+                      transcription=transcription, solver=solver)
+        seconds += time.perf_counter() - t0
+        if aimed.kept:
+            evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum,
+                                  plan=aimed.plan)
     learned, true = {}, {}
     if config.model == "parametric":
         learned = {k: float(v) for k, v in theta.items()}
@@ -228,7 +246,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
     return SysidReport(system=system.name, config=config, model=model, theta=theta, learned=learned, true=true,
                        standard_errors=standard_errors, unidentifiable=unidentifiable, fit_status=status,
                        fit_message=message, train_seconds=seconds, evaluation=evaluation, history=history,
-                       dataset=dataset, rounds=config.rounds, polish=tuple(polishes))
+                       dataset=dataset, rounds=config.rounds, polish=tuple(polishes), reaim=aimed)
 
 
 def failed(report: SysidReport) -> str | None:

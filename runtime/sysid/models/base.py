@@ -108,11 +108,12 @@ class AbstractModel(abc.ABC):
 
     # ---- written once ----------------------------------------------------------------------------------------
 
-    def as_system(self, theta: Any) -> "LearnedSystem":
-        """The model with parameters ``theta`` as a :class:`LearnedSystem` (``solve`` takes it unchanged)."""
+    def as_system(self, theta: Any, aim: Any = None) -> "LearnedSystem":
+        """The model with parameters ``theta`` as a :class:`LearnedSystem` (``solve`` takes it unchanged); ``aim``
+        shifts the planner's final values (see :class:`LearnedSystem`)."""
         from .learned_system import LearnedSystem
 
-        return LearnedSystem(self, theta)
+        return LearnedSystem(self, theta, aim)
 
     def n_parameters(self, theta: Any) -> int:
         """The number of trainable scalars in ``theta``."""

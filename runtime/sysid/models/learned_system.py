@@ -22,6 +22,12 @@ up; ``model_label`` tells the model). Derivative artefacts:
 
 Overriding parameters: pass a new ``theta`` through ``model.as_system(theta)``; ``solve(..., params=...)`` replaces the
 top-level entries ``"spec"`` / ``"model"`` whole.
+
+Re-aiming (``aim``): the planner may be asked to steer the *model* to other final values than the true system's
+required ones, ``x_final - aim``, so that a plan whose model misses the true final state by ``aim`` lands on it in the
+true system (:mod:`..terminal`). Final values are constants of the compiled NLP, so ``aim`` is part of the system's
+identity (a new aim compiles a new NLP); a plan's own defect is against the aimed values, and the evaluation judges it
+on the true system against the true ones.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ...system import OptimalControlUnavailable, System
 from .base import AbstractModel, as_float
@@ -45,6 +52,8 @@ class LearnedSystem(System):
     Args:
         model: the model (its ``system`` is the true system).
         theta: the model's parameters (structure and shapes of ``model.init_params``).
+        aim: None, or an offset (n_states,) subtracted from the required final values when planning (entries of
+            free final states are ignored).
 
     Attributes:
         model, theta, true_system: as given (``true_system`` is ``model.system``).
@@ -55,7 +64,7 @@ class LearnedSystem(System):
         ValueError: ``theta`` of another structure or shape than the model's.
     """
 
-    def __init__(self, model: AbstractModel, theta: Any):
+    def __init__(self, model: AbstractModel, theta: Any, aim: Any = None):
         if not isinstance(model, AbstractModel):
             raise TypeError(f"LearnedSystem: expected a sysid model, got {type(model).__name__}")
         model.check_params(theta)
@@ -68,6 +77,13 @@ class LearnedSystem(System):
         put("theta", as_float(theta))
         put("true_system", true)
         put("model_label", model.label)
+        put("aim", None)
+        if aim is not None:
+            aim = np.asarray(aim, dtype=np.float64)
+            if aim.shape != (true.n_states,) or not np.all(np.isfinite(aim)):
+                raise ValueError(f"LearnedSystem: aim must be {true.n_states} finite numbers, got {aim!r}")
+            put("aim", tuple(float(a) if v is not None else 0.0 for a, v in zip(aim, true.x_final)))
+            put("x_final", tuple(None if v is None else float(v) - a for v, a in zip(true.x_final, self.aim)))
         put("time_dependent", bool(true.time_dependent or getattr(model, "time_input", False)))
         if not model.spec_form:
             put("optimal_control_kind", "none")
@@ -82,10 +98,10 @@ class LearnedSystem(System):
 
     # ---- identity: by (true system, model configuration); theta is data -------------------------------------
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and other.model == self.model
+        return type(other) is type(self) and other.model == self.model and other.aim == self.aim
 
     def __hash__(self) -> int:
-        return hash(("LearnedSystem", self.model))
+        return hash(("LearnedSystem", self.model, self.aim))
 
     def __repr__(self) -> str:
         return (f"<myriad learned system {self.name!r} [{self.model_label}]: {self.n_states} states, "
