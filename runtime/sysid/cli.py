@@ -36,6 +36,9 @@ def add_parser(sub) -> None:
     s.add_argument("--polish", type=int, default=None, metavar="N",
                    help="Neural ODE: L-BFGS iterations after each round's Adam fit, anchored on the earlier plans' "
                         "true trajectories (default 300; 0: none)")
+    s.add_argument("--reaim", type=int, default=None, metavar="K",
+                   help="re-aim the final plan at the required final values at most K times from observed true runs "
+                        "(default: 3 for a Neural ODE, 0 for a parametric model)")
     add_training_outputs(s, "loss curve, learned vs true trajectories, vector field (PNG)")
 
 
@@ -62,7 +65,7 @@ def run(args) -> int:
         polish = "default" if args.polish is None else (PolishConfig(iterations=args.polish) if args.polish else None)
         config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
                              rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden),
-                             activation=args.activation, fit=fit, polish=polish)
+                             activation=args.activation, fit=fit, polish=polish, reaim=args.reaim)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load
@@ -82,6 +85,8 @@ def run(args) -> int:
               f"standard error {se:.2g})")
     if report.unidentifiable:
         print(f"  not identifiable from these data: {', '.join(report.unidentifiable)}")
+    if report.reaim is not None and report.reaim.misses:
+        print(f"  re-aimed at the final values: {report.reaim.message}")
     print(f"  planned on the model, applied to the true system: cost {rec['achieved_cost']} "
           f"(true optimum {rec['optimal_cost']}), defect {rec['achieved_defect'] or 'none required'}")
     if args.json:

@@ -74,3 +74,10 @@ def test_reaim_defaults_and_bad_values():
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="reaim must be an integer >= 0"):
             SysidConfig(model="node", reaim=bad)
+
+
+def test_cli_refuses_a_negative_reaim_before_work(capsys):
+    from myriad.runtime.cli import main
+
+    assert main(["sysid", "van_der_pol", "--model", "node", "--reaim", "-1"]) == 2
+    assert "reaim must be an integer >= 0" in capsys.readouterr().err
