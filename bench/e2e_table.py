@@ -144,10 +144,10 @@ def node_row(name: str, args) -> dict:
         solver = InteriorPoint() if args.implicit_solver == "interior_point" else None
         init = args.init
         if init == "sysid" and args.sysid_rounds is not None:  # E2EConfig's own "sysid" is one round
-            init = SysidConfig(model="node", hidden=tuple(width), seed=args.seed, rounds=args.sysid_rounds)
+            init = SysidConfig(model="node", hidden=tuple(width), seed=args.seed, rounds=args.sysid_rounds, reaim=0)
         config = E2EConfig(model="node", gradient=args.gradient, unroll=args.unroll, iterations=args.iterations,
                            optimizer=args.lr, reset_every=args.reset_every, init=init, hidden=tuple(width),
-                           seed=args.seed, implicit_solver=solver, loss=args.loss)
+                           seed=args.seed, implicit_solver=solver, loss=args.loss, reaim=args.reaim)
         report = run_e2e(name, config, progress=False)
     except Exception as exc:  # noqa: BLE001 -- never lose the table
         return {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
@@ -252,6 +252,8 @@ def main() -> None:
     lr.add_argument("--loss", choices=["controls", "states", "both"], default="controls",
                     help="the imitation loss (controls: published)")
     lr.add_argument("--hidden", type=int, nargs="+", default=None, help="node: widths (default: Table D's)")
+    lr.add_argument("--reaim", type=int, default=None, metavar="K", help="re-aims of the final plan (default: "
+                    "the library's, 3 for a Neural ODE)")
     lr.add_argument("--seed", type=int, default=0)
     lr.add_argument("--implicit-solver", choices=["interior_point", "extragradient"], default="interior_point",
                     help="node, implicit gradients: the solve to tolerance (default interior_point: Newton steps; the "

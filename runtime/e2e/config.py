@@ -75,6 +75,9 @@ class E2EConfig:
             with ``SysidConfig(model, hidden, activation, seed, rounds=1)``: "the same objects as system
             identification"), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
             ``run_e2e(theta0=...)`` starts from given parameters instead.
+        reaim: after training, re-aim the converged plan at the required final values at most this many times from
+            observed runs of the true system (:mod:`~myriad.runtime.sysid.reaim`); None: 3 for a Neural ODE, 0 for a
+            parametric model. It changes only the judged plan, not the training (nor a checkpoint's identity).
     """
 
     model: str = "parametric"
@@ -96,6 +99,7 @@ class E2EConfig:
     snapshot_every: int | None = None
     seed: int = 0
     init: Any = "guess"
+    reaim: int | None = None
 
     def __post_init__(self):
         for name, allowed in (("model", MODELS), ("gradient", GRADIENTS), ("loss", LOSSES),
@@ -104,8 +108,11 @@ class E2EConfig:
                 raise ValueError(f"E2EConfig({name}={getattr(self, name)!r}): expected one of {allowed}")
         if self.unroll is None:
             object.__setattr__(self, "unroll", 10 if self.model == "parametric" else 5)
+        if self.reaim is None:
+            object.__setattr__(self, "reaim", 0 if self.model == "parametric" else 3)
         for name, low, optional in (("unroll", 1, False), ("iterations", 1, False), ("reset_every", 1, True),
-                                    ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False)):
+                                    ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False),
+                                    ("reaim", 0, False)):
             v = getattr(self, name)
             if not ((optional and v is None) or _int(v, low)):
                 raise ValueError(f"E2EConfig: {name} must be an integer >= {low}{' or None' if optional else ''}, "
@@ -158,13 +165,14 @@ class E2EConfig:
             return self.init
         if self.init == "guess":
             return None
-        return SysidConfig(model=self.model, hidden=self.hidden, activation=self.activation, seed=self.seed, rounds=1)
+        return SysidConfig(model=self.model, hidden=self.hidden, activation=self.activation, seed=self.seed, rounds=1,
+                           reaim=0)
 
     def identity(self, system: str) -> tuple[str, dict]:
         """``(sha256, description)`` of what fixes the sequence of iterates (not ``iterations``,
         ``checkpoint_every`` or ``snapshot_every``, which a resumed run may change)."""
         desc = {f.name: _describe(getattr(self, f.name)) for f in dataclasses.fields(self)
-                if f.name not in ("iterations", "checkpoint_every", "snapshot_every")}
+                if f.name not in ("iterations", "checkpoint_every", "snapshot_every", "reaim")}
         opt = self.optimizer
         desc["optimizer"] = {"adam": opt} if isinstance(opt, float) else {"custom": describe(opt.init)}
         desc["system"] = system

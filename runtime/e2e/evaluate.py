@@ -29,6 +29,7 @@ class E2EEvaluation:
     plan_imitation_loss: float
     converged: bool
     message: str
+    reaim: Any = None
 
     @property
     def relative_gap(self) -> float:
@@ -39,21 +40,34 @@ class E2EEvaluation:
         return {"achieved_cost": num(self.achieved_cost), "achieved_defect": [num(d) for d in self.achieved_defect],
                 "optimal_cost": num(self.expert.cost), "optimal_defect": [num(d) for d in self.expert.defect],
                 "relative_gap": num(self.relative_gap), "plan_imitation_loss": num(self.plan_imitation_loss),
-                "planned_cost": num(self.plan.cost), "plan_status": str(self.plan.status)}
+                "planned_cost": num(self.plan.cost), "plan_status": str(self.plan.status),
+                "reaim": None if self.reaim is None else self.reaim.record()}
 
 
 def evaluate_learned(model: Any, theta: Any, spec_params: dict, expert: Solution, transcription: Any,
-                     solver: Any = None) -> E2EEvaluation:
+                     solver: Any = None, reaim: int = 0) -> E2EEvaluation:
     """Plan on ``model.as_system(theta)`` with the spec parameters ``spec_params`` (learned cost weights in), apply
     the planned controls to the true system (the transcription's integrator on its grid; Heun for collocation, as
     the published measure) at the spec's own parameters, and compare with ``expert``.
 
     ``plan_imitation_loss`` is the published imitation loss of the converged plan, mean over nodes of
-    ||u - u*||^2, when the plan is on the expert's grid (NaN otherwise)."""
+    ||u - u*||^2, when the plan is on the expert's grid (NaN otherwise). ``reaim`` > 0: the converged plan is
+    re-aimed at the required final values from that many observed runs of the true system at most
+    (:mod:`~myriad.runtime.sysid.reaim`; noise-free, on the plan's grid), and the kept plan is judged."""
     true = model.system
     learned = model.as_system(theta)
-    plan = solve(learned, transcription, solver or Ipopt(), params={"spec": spec_params, "model": theta},
-                 resimulate=False)
+    params = {"spec": spec_params, "model": theta}
+    plan = solve(learned, transcription, solver or Ipopt(), params=params, resimulate=False)
+    aimed = None
+    if reaim and plan.converged:
+        from ..sysid.dataset import Sampling
+        from ..sysid.reaim import reaim as re_aim
+
+        sampling = Sampling(intervals=plan.controls.shape[0] - 1,
+                            integrator=getattr(transcription, "integrator", None) or Heun())
+        aimed = re_aim(model, theta, plan, sampling, iterations=reaim, seed=0, transcription=transcription,
+                       solver=solver or Ipopt(), params=params)
+        plan = aimed.plan
     data = default_data(true)
     integrator = getattr(transcription, "integrator", None) or Heun()
     sim = simulate(true, plan.controls, data.params, data.x0, integrator=integrator)
@@ -63,4 +77,4 @@ def evaluate_learned(model: Any, theta: Any, spec_params: dict, expert: Solution
     message = ("planned on the learned model and applied to the true system" if plan.converged else
                f"planning on the learned model failed ({plan.status}): {plan.message}")
     return E2EEvaluation(plan=plan, expert=expert, achieved_cost=float(sim.cost), achieved_defect=defect,
-                         plan_imitation_loss=loss, converged=bool(plan.converged), message=message)
+                         plan_imitation_loss=loss, converged=bool(plan.converged), message=message, reaim=aimed)

@@ -269,7 +269,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
             f"({counts['skipped']} skipped, {counts['fallback_unrolled']} unrolled instead)")
     theta = model.combine(train["model"], frozen["model"])
     spec_params = {**consts["spec"], **train["cost"]}
-    evaluation = evaluate_learned(model, theta, spec_params, expert, transcription)
+    evaluation = evaluate_learned(model, theta, spec_params, expert, transcription, reaim=config.reaim)
     learned = {k: float(v) for k, v in theta.items()} if isinstance(model, Parametric) else {}
     learned.update({f"cost.{k}": float(v) for k, v in train["cost"].items()})
     if not evaluation.converged:

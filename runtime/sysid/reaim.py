@@ -63,7 +63,7 @@ class Reaim:
 
 
 def reaim(model: Any, theta: Any, plan: Solution, sampling: Sampling, *, iterations: int, seed: int,
-          transcription=None, solver=None, tolerance: float = 0.0) -> Reaim:
+          transcription=None, solver=None, params: Any = None, tolerance: float = 0.0) -> Reaim:
     """Re-aim ``plan`` (a converged plan on ``model.as_system(theta)``) at most ``iterations`` times.
 
     Args:
@@ -73,6 +73,8 @@ def reaim(model: Any, theta: Any, plan: Solution, sampling: Sampling, *, iterati
         iterations: the most re-aimed plans (each costs one planning solve and one observed run).
         seed: the observed runs' noise draws derive from it.
         transcription, solver: the planning setting.
+        params: the learned system's parameters for planning (``{"spec": ..., "model": theta}``, e.g. with learned
+            cost weights), None: the spec's and ``theta``.
         tolerance: stop once a plan's observed miss is at most this.
     """
     true = model.system
@@ -88,7 +90,7 @@ def reaim(model: Any, theta: Any, plan: Solution, sampling: Sampling, *, iterati
             message = f"{k} re-aims, observed misses " + ", ".join(f"{m:.2e}" for m in misses)
             break
         aims.append(aims[-1] + miss)
-        nxt = solve(model.as_system(theta, aims[-1]), transcription, solver, resimulate=False)
+        nxt = solve(model.as_system(theta, aims[-1]), transcription, solver, params=params, resimulate=False)
         if not nxt.converged:
             message = (f"re-aim {k + 1} did not converge ({nxt.status}: {nxt.message}); kept the best plan of "
                        f"{k + 1} observed")

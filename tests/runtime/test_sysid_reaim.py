@@ -81,3 +81,22 @@ def test_cli_refuses_a_negative_reaim_before_work(capsys):
 
     assert main(["sysid", "van_der_pol", "--model", "node", "--reaim", "-1"]) == 2
     assert "reaim must be an integer >= 0" in capsys.readouterr().err
+
+
+def test_end_to_end_evaluation_re_aims_with_the_learned_parameters(wrong):
+    from myriad.runtime.e2e.config import E2EConfig
+    from myriad.runtime.e2e.evaluate import evaluate_learned
+
+    model, theta = wrong
+    spec = model.system.default_params()
+    expert = solve(model.system, resimulate=False)
+    plain = evaluate_learned(model, theta, spec, expert, None)
+    aimed = evaluate_learned(model, theta, spec, expert, None, reaim=4)
+    assert plain.reaim is None and max(map(abs, plain.achieved_defect)) > 0.1
+    assert max(map(abs, aimed.achieved_defect)) < 1e-4 * max(map(abs, plain.achieved_defect))
+    assert aimed.record()["reaim"]["kept"] == aimed.reaim.kept
+    # reaim judges, it does not train: a resumed run may change it
+    assert E2EConfig(model="node").reaim == 3 and E2EConfig().reaim == 0
+    assert E2EConfig(model="node", reaim=0).identity("x")[0] == E2EConfig(model="node").identity("x")[0]
+    with pytest.raises(ValueError, match="reaim must be an integer >= 0"):
+        E2EConfig(model="node", reaim=-2)
