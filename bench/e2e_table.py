@@ -253,7 +253,7 @@ def main() -> None:
                     help="the imitation loss (controls: published)")
     lr.add_argument("--hidden", type=int, nargs="+", default=None, help="node: widths (default: Table D's)")
     lr.add_argument("--reaim", type=int, default=None, metavar="K", help="re-aims of the final plan (default: "
-                    "the library's, 3 for a Neural ODE)")
+                    "the library's, 6 for a Neural ODE)")
     lr.add_argument("--seed", type=int, default=0)
     lr.add_argument("--implicit-solver", choices=["interior_point", "extragradient"], default="interior_point",
                     help="node, implicit gradients: the solve to tolerance (default interior_point: Newton steps; the "

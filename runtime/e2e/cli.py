@@ -49,7 +49,7 @@ def add_parser(sub) -> None:
     s.add_argument("--expert-index", type=int, default=0, metavar="I", help="which trajectory of the split (0)")
     s.add_argument("--reaim", type=int, default=None, metavar="K",
                    help="re-aim the final plan at the required final values at most K times from observed true runs "
-                        "(default: 3 for a Neural ODE, 0 for a parametric model)")
+                        "(default: 6 for a Neural ODE, 0 for a parametric model)")
     s.add_argument("--seed", type=int, default=0, metavar="S")
     add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 

@@ -76,7 +76,7 @@ class E2EConfig:
             identification"), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
             ``run_e2e(theta0=...)`` starts from given parameters instead.
         reaim: after training, re-aim the converged plan at the required final values at most this many times from
-            observed runs of the true system (:mod:`~myriad.runtime.sysid.reaim`); None: 3 for a Neural ODE, 0 for a
+            observed runs of the true system (:mod:`~myriad.runtime.sysid.reaim`); None: 6 for a Neural ODE, 0 for a
             parametric model. It changes only the judged plan, not the training (nor a checkpoint's identity).
     """
 
@@ -109,7 +109,7 @@ class E2EConfig:
         if self.unroll is None:
             object.__setattr__(self, "unroll", 10 if self.model == "parametric" else 5)
         if self.reaim is None:
-            object.__setattr__(self, "reaim", 0 if self.model == "parametric" else 3)
+            object.__setattr__(self, "reaim", 0 if self.model == "parametric" else 6)
         for name, low, optional in (("unroll", 1, False), ("iterations", 1, False), ("reset_every", 1, True),
                                     ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False),
                                     ("reaim", 0, False)):

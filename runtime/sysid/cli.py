@@ -25,7 +25,7 @@ def add_parser(sub) -> None:
                    help="least_squares (parametric default) or adam on the trajectory loss (Neural ODE default)")
     s.add_argument("--trajectories", type=int, default=10, metavar="N", help="training trajectories per dataset")
     s.add_argument("--rounds", type=int, default=None, metavar="K",
-                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 4 for a "
+                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 6 for a "
                         "Neural ODE, 1 for a parametric model)")
     s.add_argument("--noise", type=float, default=0.0, metavar="F", help="observation noise, fraction of the range")
     s.add_argument("--seed", type=int, default=0, metavar="S")
@@ -38,7 +38,7 @@ def add_parser(sub) -> None:
                         "true trajectories (default 300; 0: none)")
     s.add_argument("--reaim", type=int, default=None, metavar="K",
                    help="re-aim the final plan at the required final values at most K times from observed true runs "
-                        "(default: 3 for a Neural ODE, 0 for a parametric model)")
+                        "(default: 6 for a Neural ODE, 0 for a parametric model)")
     add_training_outputs(s, "loss curve, learned vs true trajectories, vector field (PNG)")
 
 

@@ -44,18 +44,21 @@ class SysidConfig:
         method: "least_squares" (Levenberg-Marquardt, parametric only; the default there) or "adam" (the published
             trajectory loss with optax; the only choice for Neural ODEs).
         trajectories: training trajectories per dataset (validation and test: ``max(3, trajectories // 3)`` each).
-        rounds: datasets in sequence (default: 4 for a Neural ODE, 1 for a parametric model).
+        rounds: datasets in sequence (default: 6 for a Neural ODE, 1 for a parametric model).
         noise: observation noise as a fraction of the state range.
         seed: everything random derives from it (same seed, same result on CPU).
         hidden, activation: the Neural ODE's network (default 2 x 100, tanh; the published "sigmoid" is available).
         fit: the optimiser settings for ``method="adam"``; None: :func:`node_fit_config` for a Neural ODE (the recipe
             in docs/notes/node-training.md), ``FitConfig()`` for a parametric model.
+        refit: the optimiser settings of rounds after the first, which start from the last round's parameters
+            (None: ``fit`` again). On Pendulum a 500-epoch refit planned 9 % above the optimum where ``fit`` again
+            planned within 0.1 % (docs/notes/node-training.md), hence the default None.
         sampling: how trajectories are drawn (its ``noise`` is replaced by ``noise`` above).
         polish: an L-BFGS polish after every round's Adam fit, with the true trajectories of the earlier rounds'
             plans as anchors (:mod:`.polish`); ``"default"``:
             ``PolishConfig()`` for a Neural ODE, None (no polish) for a parametric model.
         reaim: after the last round, re-aim the plan at the required final values this many times from observed
-            runs of the true system (:mod:`.reaim`); None: 3 for a Neural ODE, 0 for a parametric model (its plan
+            runs of the true system (:mod:`.reaim`); None: 6 for a Neural ODE, 0 for a parametric model (its plan
             is the true model's once the parameters are recovered).
     """
 
@@ -68,6 +71,7 @@ class SysidConfig:
     hidden: tuple[int, ...] = (100, 100)
     activation: str = "tanh"
     fit: FitConfig | None = None
+    refit: FitConfig | None = None
     sampling: Sampling = Sampling()
     polish: Any = "default"
     reaim: int | None = None
@@ -82,16 +86,18 @@ class SysidConfig:
             raise ValueError("SysidConfig: least squares fits parametric models only; a Neural ODE trains with adam")
         object.__setattr__(self, "method", method)
         if self.rounds is None:  # datasets in sequence fix a Neural ODE's plan (docs/notes/node-training.md)
-            object.__setattr__(self, "rounds", 4 if self.model == "node" else 1)
+            object.__setattr__(self, "rounds", 6 if self.model == "node" else 1)
         if self.fit is None:
             object.__setattr__(self, "fit", node_fit_config() if self.model == "node" else FitConfig())
+        if self.refit is not None and not isinstance(self.refit, FitConfig):
+            raise ValueError(f"SysidConfig: refit must be a FitConfig or None, got {self.refit!r}")
         if isinstance(self.polish, str) and self.polish == "default":
             object.__setattr__(self, "polish", PolishConfig() if self.model == "node" else None)
         if self.polish is not None and (not isinstance(self.polish, PolishConfig) or method != "adam"):
             raise ValueError(f"SysidConfig: polish must be a PolishConfig (with method='adam') or None, got "
                              f"{self.polish!r}")
         if self.reaim is None:
-            object.__setattr__(self, "reaim", 3 if self.model == "node" else 0)
+            object.__setattr__(self, "reaim", 6 if self.model == "node" else 0)
         if isinstance(self.reaim, bool) or not isinstance(self.reaim, int) or self.reaim < 0:
             raise ValueError(f"SysidConfig: reaim must be an integer >= 0, got {self.reaim!r}")
         if self.trajectories < 1 or self.rounds < 1:
@@ -219,7 +225,8 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             message = ls.message
         else:
             where = None if checkpoint_dir is None else Path(checkpoint_dir) / f"round{r}"
-            fr = fit(model, dataset, config.fit, theta0=theta, checkpoint_dir=where, resume=resume, progress=progress)
+            settings = config.fit if r == 0 or config.refit is None else config.refit
+            fr = fit(model, dataset, settings, theta0=theta, checkpoint_dir=where, resume=resume, progress=progress)
             theta, status, message = fr.theta, fr.stopped, fr.message
             history += [(e + (r and history[-1][0]), tl, vl) for e, tl, vl in fr.history]
             if config.polish is not None and status in ("converged", "early_stopping", "max_epochs"):

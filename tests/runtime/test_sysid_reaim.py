@@ -70,7 +70,7 @@ def test_observe_is_the_true_rollout_under_the_controls():
 
 
 def test_reaim_defaults_and_bad_values():
-    assert SysidConfig(model="node").reaim == 3 and SysidConfig().reaim == 0
+    assert SysidConfig(model="node").reaim == 6 and SysidConfig().reaim == 0
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="reaim must be an integer >= 0"):
             SysidConfig(model="node", reaim=bad)
@@ -96,7 +96,7 @@ def test_end_to_end_evaluation_re_aims_with_the_learned_parameters(wrong):
     assert max(map(abs, aimed.achieved_defect)) < 1e-4 * max(map(abs, plain.achieved_defect))
     assert aimed.record()["reaim"]["kept"] == aimed.reaim.kept
     # reaim judges, it does not train: a resumed run may change it
-    assert E2EConfig(model="node").reaim == 3 and E2EConfig().reaim == 0
+    assert E2EConfig(model="node").reaim == 6 and E2EConfig().reaim == 0
     assert E2EConfig(model="node", reaim=0).identity("x")[0] == E2EConfig(model="node").identity("x")[0]
     with pytest.raises(ValueError, match="reaim must be an integer >= 0"):
         E2EConfig(model="node", reaim=-2)
