@@ -71,7 +71,8 @@ class FitConfig:
             E may be None: up to ``epochs``), or plain ``(W1, ..., WK)`` for equal shares of ``epochs``. Windows tile
             the trajectory under multiple shooting; under single shooting a stage fits the first W_i steps only.
         gamma: per-step weight gamma^l within each window, in (0, 1] (the published crude curriculum; 1: none).
-        scale: ``"none"`` (the published loss) or ``"range"`` (errors divided by each state's range).
+        scale: ``"none"`` (the published loss), ``"range"`` (errors divided by each state's range) or ``"data"`` (by its
+            spread in the training data; see :mod:`.losses`).
         checkpoint_every: epochs between checkpoints (with ``checkpoint_dir``); None: every validation.
         seed: seeds the initial parameters and the minibatch order.
         tol: stop as converged when the validation loss is <= tol (0: only an exact fit).

@@ -27,7 +27,9 @@ total and K is the number of distinct predicted nodes. The layouts:
 gamma^l is the published "crude curriculum" (gamma ~ 0.88 for Bacteria, Mountain Car, Cart-Pole), counted from each
 window's start. Scales: ``"none"`` (s = 1, the published loss) or ``"range"`` (s_i = x_max,i - x_min,i where both
 bounds are finite, else max |x_i| observed, else 1: states of very different magnitudes, such as HIV Treatment's
-T ~ 1000 and I ~ 0.04, then weigh alike; the same definition as :mod:`.least_squares`).
+T ~ 1000 and I ~ 0.04, then weigh alike; the same definition as :mod:`.least_squares`) or ``"data"`` (s_i = the
+spread max - min of x_i over the training data, else the range: a state that the data move over a small part of its
+bounds, such as Glucose's hormone H in [0, 0.002] of [0, 1], is fitted as closely as the others).
 
 :func:`trajectory_loss` evaluates the loss for one batch (tests, diagnostics); :func:`validation_loss` and
 :func:`train_epoch` are the two compiled functions :func:`~.fit.fit` runs, jit-cached on their static configuration
@@ -49,7 +51,7 @@ from ..integrators import INTEGRATORS, RK4, AbstractIntegrator, rollout
 __all__ = ["SCALES", "TRACES", "Layout", "fit_integrator", "layout", "state_scale", "train_epoch", "trajectory_loss",
            "validation_loss", "window_losses"]
 
-SCALES = ("none", "range")
+SCALES = ("none", "range", "data")
 
 
 def fit_integrator(sampling: Any) -> AbstractIntegrator:
@@ -74,18 +76,24 @@ def fit_integrator(sampling: Any) -> AbstractIntegrator:
 
 
 def state_scale(system: Any, states: Any, scale: str) -> np.ndarray:
-    """The per-state scale s (n,) of the loss: ones for ``"none"``; see the module docstring for ``"range"``."""
+    """The per-state scale s (n,) of the loss: ones for ``"none"``; see the module docstring for ``"range"`` and
+    ``"data"``."""
     n = np.shape(states)[-1]
     if scale == "none":
         return np.ones(n)
-    if scale != "range":
+    if scale not in SCALES:
         raise ValueError(f"scale must be one of {SCALES}, got {scale!r}")
     states = np.asarray(states, dtype=np.float64)  # concrete data: the scale is a constant of the loss
     a = system.arrays()
     s = a["x_upper"] - a["x_lower"]
-    observed = np.max(np.abs(states).reshape(-1, n), axis=0) if states.size else np.zeros(n)
+    flat = states.reshape(-1, n)
+    observed = np.max(np.abs(flat), axis=0) if states.size else np.zeros(n)
     s = np.where(np.isfinite(s) & (s > 0), s, observed)
-    return np.where(np.isfinite(s) & (s > 0), s, 1.0)
+    s = np.where(np.isfinite(s) & (s > 0), s, 1.0)
+    if scale == "data" and states.size:
+        spread = np.ptp(flat, axis=0)
+        s = np.where(np.isfinite(spread) & (spread > 1e-12 * s), np.minimum(spread, s), s)
+    return s
 
 
 class Layout:

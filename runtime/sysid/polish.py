@@ -48,14 +48,14 @@ class PolishConfig:
         window: multiple-shooting window on the dataset (1..N); None: single shooting over the whole horizon.
         anchor_weight: weight of the anchors' full-horizon loss (0: anchors ignored); 10 measured better than 1 on
             the 2-4-state systems with required final values (docs/notes/node-training.md).
-        scale: the loss's state scale, ``"range"`` or ``"none"`` (see :mod:`.losses`).
+        scale: the loss's state scale, ``"range"``, ``"data"`` or ``"none"`` (see :mod:`.losses`).
         gtol: stop when the gradient norm falls below this (0: run all iterations).
     """
 
     iterations: int = 300
     window: int | None = 10
     anchor_weight: float = 10.0
-    scale: str = "range"
+    scale: str = "data"
     gtol: float = 0.0
 
     def __post_init__(self):

@@ -153,7 +153,8 @@ class SysidReport:
 
 
 def node_fit_config(epochs: int = 1000) -> FitConfig:
-    """The Neural ODE training recipe: multiple-shooting windows of 10 steps on range-scaled states, Adam with a
+    """The Neural ODE training recipe: multiple-shooting windows of 10 steps on states scaled by their spread in the
+    data (Glucose's hormone moves over 0.2 % of its range: range-scaled, its errors were invisible), Adam with a
     warm-up to 1e-2 and a cosine decay over ``epochs``, gradients clipped to norm 1.
 
     Measured against the published setting (single shooting on the whole horizon, sigmoid, Adam 1e-3), which learns
@@ -163,7 +164,7 @@ def node_fit_config(epochs: int = 1000) -> FitConfig:
     schedule = optax.warmup_cosine_decay_schedule(0.0, 1e-2, warmup_steps=min(50, max(1, epochs // 20)),
                                                   decay_steps=max(epochs, 2), end_value=1e-4)
     optimizer = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(schedule))
-    return FitConfig(optimizer=optimizer, epochs=epochs, method="multiple_shooting", window=10, scale="range")
+    return FitConfig(optimizer=optimizer, epochs=epochs, method="multiple_shooting", window=10, scale="data")
 
 
 def _cat(x: Trajectories, y: Trajectories) -> Trajectories:

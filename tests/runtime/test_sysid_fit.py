@@ -99,6 +99,11 @@ def test_integrator_and_scale_choices(system):
     hiv = load("hiv_treatment")  # states of very different magnitudes: T ~ 800, I ~ 0.04
     np.testing.assert_allclose(state_scale(hiv, np.ones((1, 2, 3)), "range"), [1600.0, 100.0, 100.0])
     np.testing.assert_allclose(state_scale(hiv, np.ones((1, 2, 3)), "none"), 1.0)
+    # "data": the spread of each state over the data, never above the range; a state the data never move keeps it
+    x = np.stack([np.array([[100.0, 0.01, 5.0], [500.0, 0.03, 5.0]])])
+    np.testing.assert_allclose(state_scale(hiv, x, "data"), [400.0, 0.02, 100.0])
+    np.testing.assert_allclose(state_scale(hiv, np.array([[[0.0, -200.0, 0.0], [0.0, 300.0, 1.0]]]), "data"),
+                               [1600.0, 100.0, 1.0])
 
 
 # ---- fitting -------------------------------------------------------------------------------------------------------
