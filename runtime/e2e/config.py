@@ -170,7 +170,7 @@ class E2EConfig:
 
     def identity(self, system: str) -> tuple[str, dict]:
         """``(sha256, description)`` of what fixes the sequence of iterates (not ``iterations``,
-        ``checkpoint_every`` or ``snapshot_every``, which a resumed run may change)."""
+        ``checkpoint_every``, ``snapshot_every`` or ``reaim``, which a resumed run may change)."""
         desc = {f.name: _describe(getattr(self, f.name)) for f in dataclasses.fields(self)
                 if f.name not in ("iterations", "checkpoint_every", "snapshot_every", "reaim")}
         opt = self.optimizer

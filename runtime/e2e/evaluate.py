@@ -14,6 +14,8 @@ from ..simulate import simulate
 from ..solution import Solution, json_number
 from ..solve import solve
 from ..solvers import Ipopt
+from ..sysid.dataset import Sampling
+from ..sysid.reaim import reaim as re_aim
 
 __all__ = ["E2EEvaluation", "evaluate_learned"]
 
@@ -58,18 +60,14 @@ def evaluate_learned(model: Any, theta: Any, spec_params: dict, expert: Solution
     learned = model.as_system(theta)
     params = {"spec": spec_params, "model": theta}
     plan = solve(learned, transcription, solver or Ipopt(), params=params, resimulate=False)
+    integrator = getattr(transcription, "integrator", None) or Heun()
     aimed = None
     if reaim and plan.converged:
-        from ..sysid.dataset import Sampling
-        from ..sysid.reaim import reaim as re_aim
-
-        sampling = Sampling(intervals=plan.controls.shape[0] - 1,
-                            integrator=getattr(transcription, "integrator", None) or Heun())
+        sampling = Sampling(intervals=plan.controls.shape[0] - 1, integrator=integrator)
         aimed = re_aim(model, theta, plan, sampling, iterations=reaim, seed=0, transcription=transcription,
                        solver=solver or Ipopt(), params=params)
         plan = aimed.plan
     data = default_data(true)
-    integrator = getattr(transcription, "integrator", None) or Heun()
     sim = simulate(true, plan.controls, data.params, data.x0, integrator=integrator)
     defect = [float(d) for d in np.asarray(sim.defect)[true.final_mask]]
     same_grid = plan.controls.shape == expert.controls.shape

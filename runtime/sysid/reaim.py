@@ -80,8 +80,7 @@ def reaim(model: Any, theta: Any, plan: Solution, sampling: Sampling, *, iterati
     """
     true = model.system
     mask = true.final_mask
-    aim = np.zeros(true.n_states)
-    plans, aims, misses = [plan], [aim], []
+    plans, aims, misses = [plan], [np.zeros(true.n_states)], []
     message = "no required final values: nothing to re-aim"
     for k in range(iterations + 1 if mask.any() else 0):
         x_end = observe(true, sampling, plans[-1].controls, seed + k).states[0, -1]

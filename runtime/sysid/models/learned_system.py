@@ -25,7 +25,7 @@ top-level entries ``"spec"`` / ``"model"`` whole.
 
 Re-aiming (``aim``): the planner may be asked to steer the *model* to other final values than the true system's
 required ones, ``x_final - aim``, so that a plan whose model misses the true final state by ``aim`` lands on it in the
-true system (:mod:`..terminal`). Final values are constants of the compiled NLP, so ``aim`` is part of the system's
+true system (:mod:`..reaim`). Final values are constants of the compiled NLP, so ``aim`` is part of the system's
 identity (a new aim compiles a new NLP); a plan's own defect is against the aimed values, and the evaluation judges it
 on the true system against the true ones.
 """
@@ -96,7 +96,7 @@ class LearnedSystem(System):
     def __delattr__(self, name: str) -> None:
         raise AttributeError(f"LearnedSystem is immutable (tried to delete {name!r})")
 
-    # ---- identity: by (true system, model configuration); theta is data -------------------------------------
+    # ---- identity: by (true system, model configuration, aim); theta is data ---------------------------------
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and other.model == self.model and other.aim == self.aim
 
