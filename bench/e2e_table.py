@@ -23,7 +23,6 @@ printed.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -36,6 +35,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from isolate import isolated, write_json  # noqa: E402  (bench/ is the script's folder)
 
 from myriad.runtime import load  # noqa: E402
 from myriad.runtime.data import ProblemData, default_data  # noqa: E402
@@ -215,16 +215,15 @@ def learn_node(names, args) -> None:
     print(f"machine: {_machine()}\nsetting: {setting}")
     rows = []
     for name in names:
-        row = node_row(name, args)
+        row = node_row(name, args) if args.in_process else isolated(node_row, name, args)
         rows.append(row)
         what = row.get("error") or (f"gap {_fmt(row['relative_gap'], '{:+.1e}')}, loss "
                                     f"{_fmt(row['imitation_loss'], '{:.1e}')}, {row['message']}")
         print(f"  {name:17s} {row['total_seconds']:7.1f} s  {what}", file=sys.stderr, flush=True)
         md, lines = node_table(rows)
         if args.json:  # after every row: a long table interrupted keeps the rows it measured
-            with open(args.json, "w") as fh:
-                json.dump({"machine": _machine(), "setting": setting, "argv": sys.argv[1:], "rows": rows,
-                           "summary": lines}, fh, indent=1, default=lambda o: None)
+            write_json(args.json, {"machine": _machine(), "setting": setting, "argv": sys.argv[1:], "rows": rows,
+                                   "summary": lines})
     print("\n" + md + "\n\n" + "\n".join(lines))
     if args.markdown:
         with open(args.markdown, "w") as fh:
@@ -258,6 +257,8 @@ def main() -> None:
     lr.add_argument("--implicit-solver", choices=["interior_point", "extragradient"], default="interior_point",
                     help="node, implicit gradients: the solve to tolerance (default interior_point: Newton steps; the "
                          "extragradient needs thousands of steps per solve where final values are required)")
+    lr.add_argument("--in-process", action="store_true", help="node: every system in this process (default: each "
+                    "in a fresh spawned process, so that compiled programs do not pile up over the table)")
     lr.add_argument("--json", metavar="FILE")
     lr.add_argument("--markdown", metavar="FILE")
     args = p.parse_args()

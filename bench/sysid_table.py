@@ -22,14 +22,12 @@ import argparse
 import dataclasses
 import json
 import math
-import multiprocessing
 import os
 import platform
 import statistics
 import sys
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
 
 T_START = time.perf_counter()
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -39,6 +37,7 @@ import jax  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+from isolate import isolated  # noqa: E402  (bench/ is the script's folder)
 
 from myriad.runtime import load  # noqa: E402
 from myriad.runtime.simulate import simulate  # noqa: E402
@@ -289,21 +288,6 @@ def _row_in_child(name: str, args: argparse.Namespace) -> dict:
     return clean(experiment(name, config_of(args)))
 
 
-def isolated(name: str, args: argparse.Namespace) -> dict:
-    """One system in a fresh spawned process (the table of 13 Neural ODE rows ran out of memory in one process:
-    every round compiles new programs for the grown dataset). ``total_seconds`` is the parent's wall time: the
-    child's start and imports included."""
-    t0 = time.perf_counter()
-    try:
-        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-            row = pool.submit(_row_in_child, name, args).result()
-    except Exception as exc:  # noqa: BLE001 -- a crashed child (e.g. out of memory) is that row's failure
-        row = {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc()}
-    row["experiment_seconds"] = row.get("total_seconds")
-    row["total_seconds"] = time.perf_counter() - t0
-    return row
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", choices=["parametric", "node"], default="parametric")
@@ -341,7 +325,7 @@ def main(argv=None) -> int:
           f"controls, IPOPT)")
     rows = []
     for name in names:
-        row = experiment(name, config) if args.in_process else isolated(name, args)
+        row = experiment(name, config) if args.in_process else isolated(_row_in_child, name, args)
         rows.append(row)
         err = f"max rel err {fmt(row.get('max_relative_error'), '{:.1e}')}, " if config.model == "parametric" else ""
         what = row.get("error") or f"{err}gap {fmt(row['relative_gap'], '{:+.1e}')}, {row['message']}"
