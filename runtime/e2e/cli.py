@@ -31,8 +31,9 @@ def add_parser(sub) -> None:
     s.add_argument("--reset-every", type=int, default=1000, metavar="R",
                    help="restart the planner from its initial guess every R iterations (default 1000, published)")
     s.add_argument("--lr", type=float, default=None, metavar="LR", help="Adam's learning rate (default 1e-2)")
-    s.add_argument("--on-failure", choices=["skip", "unrolled"], default="skip",
-                   help="implicit mode: when a solve does not converge, skip the step or unroll instead")
+    s.add_argument("--on-failure", choices=["skip", "unrolled", "backtrack"], default="backtrack",
+                   help="implicit mode: when a solve does not converge, skip the step, unroll instead, or go back to "
+                        "the last parameters whose plan converged and take the step again at half the length")
     s.add_argument("--implicit-solver", choices=["extragradient", "interior_point"], default="extragradient",
                    help="implicit mode: the solve to tolerance (interior_point: Newton steps, much faster where final "
                         "values are required; docs/notes/e2e-node.md)")
@@ -124,7 +125,7 @@ def run(args) -> int:
         atomic_write_text(args.json, json.dumps(rec, indent=1))
     if args.plots:
         _plots(report, Path(args.plots))
-    if report.counts["skipped"] or report.counts["fallback_unrolled"]:
+    if report.counts["skipped"] or report.counts["fallback_unrolled"] or report.counts["backtracked"]:
         print(f"myriad e2e: warning: {report.system}: {report.message}", file=sys.stderr)
     if not report.converged:
         print(f"myriad e2e: {report.system}: {report.message}", file=sys.stderr)

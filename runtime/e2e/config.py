@@ -20,7 +20,7 @@ MODELS = ("parametric", "node")
 INITS = ("guess", "sysid")
 GRADIENTS = ("unrolled", "implicit")
 LOSSES = ("controls", "states", "both")
-ON_FAILURE = ("skip", "unrolled")
+ON_FAILURE = ("skip", "unrolled", "backtrack")
 
 
 def _describe(v: Any) -> Any:
@@ -56,7 +56,10 @@ class E2EConfig:
         loss: imitate the expert's ``"controls"`` (published: mean over nodes of ||u_t - u*_t||^2), its
             ``"states"`` (the model's planned states against the expert's), or ``"both"`` (the sum).
         on_failure: implicit mode, when the solve did not converge or the KKT solve failed: ``"skip"`` the update,
-            or fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate). Each is counted.
+            fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate), or ``"backtrack"``: go back
+            to the last parameters whose plan converged and take that step again at half the length (a step can
+            make the model's planning problem infeasible, e.g. a learned predator population that must go negative;
+            skipping would leave the learner there). Each is counted.
         learn_dynamics: learn the model's parameters (False: keep them at ``model_values`` or the truth; with
             ``learn_cost`` this is inverse optimal control).
         learn_cost: names of the spec's cost parameters to learn (their start: ``cost_guess``).
@@ -87,7 +90,7 @@ class E2EConfig:
     optimizer: Any = 1e-2
     reset_every: int | None = 1000
     loss: str = "controls"
-    on_failure: str = "skip"
+    on_failure: str = "backtrack"
     learn_dynamics: bool = True
     learn_cost: tuple[str, ...] = ()
     cost_guess: tuple = ()

@@ -57,6 +57,7 @@ class ImplicitSolve(NamedTuple):
     converged: jax.Array
     iterations: jax.Array
     violation: jax.Array
+    warm: Any = None  # the interior point's primal-dual warm start for the next solve (None: the extragradient's)
 
 
 def kkt_vjp(problem: ScaledProblem, data: ProblemData, z: Any, z_bar: Any) -> tuple[Any, Any, jax.Array]:
@@ -154,12 +155,13 @@ def make_implicit_solve(nlp: NLP, solver: Extragradient | InteriorPoint | None =
 
 
 def _interior_point_solve(nlp: NLP, solver: InteriorPoint) -> Callable[[Any, Any, Any], ImplicitSolve]:
-    # The interior point's pure solve is differentiable already (NaN cotangents unless converged); the start is a
-    # warm start only, so it gets a zero cotangent like the extragradient's.
+    # The interior point's pure solve is differentiable already (NaN cotangents unless converged); the start (the
+    # NLP's variables or a primal-dual WarmStart) is a warm start only, so it gets a zero cotangent.
     raw = solver.pure_solve(nlp)
 
     def solve(params, x0, z0):
         out = raw(ProblemData(params, x0), jax.lax.stop_gradient(z0))
-        return ImplicitSolve(out.z, out.status == int(Status.CONVERGED), out.iterations, out.violation)
+        return ImplicitSolve(out.z, out.status == int(Status.CONVERGED), out.iterations, out.violation,
+                             jax.lax.stop_gradient(out.warm))
 
     return solve

@@ -7,7 +7,8 @@ problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(t
   ``l(tr) = loss(z, D(tr))``, ``g = dl/dtr`` by reverse mode through the K steps; the next warm state is the K-th;
 * implicit: ``z = z*(tr)``, the extragradient solve to tolerance from the previous solution, ``g`` by the implicit
   function theorem (:mod:`.implicit`); when the solve did not converge (or the KKT solve failed) the update is
-  skipped, or ``g`` comes from K unrolled steps started at the unconverged iterate (``on_failure``);
+  skipped, or ``g`` comes from K unrolled steps started at the unconverged iterate, or the learner goes back to the
+  last parameters whose plan converged and takes that step again at half the length (``on_failure``: "backtrack");
 
 then ``tr <- tr + optax_update(g)``. ``loss`` is the mean over the grid's nodes of ``||u - u*||^2`` (controls),
 ``||x - x*||^2`` (the model's planned states against the expert's), or their sum (the mode's weights are an input: one
@@ -27,15 +28,22 @@ import optax
 from ..data import ProblemData
 from ..nlp import NLP
 from ..solvers.extragradient.loop import optax_promotion
+from ..solvers.interior_point import InteriorPoint
 from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
 
-__all__ = ["Metrics", "Program", "TRACES", "USED", "loss_weights"]
+__all__ = ["MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
 
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
-USED = ("unrolled", "implicit", "fallback_unrolled", "skipped")
+USED = ("unrolled", "implicit", "fallback_unrolled", "skipped", "backtracked")
+# on_failure="backtrack": a step whose model the planner cannot solve is taken again this much shorter; every
+# converged solve lets the next step grow by RECOVER (slower than the cut, so the failed length is not retried at
+# once), up to the optimiser's own step.
+BACKTRACK, RECOVER = 0.5, 1.25
+# Below this fraction of the optimiser's step the run stops: every nearby model is one the planner cannot solve.
+MIN_STEP_SCALE = 2.0**-20
 
 
 class Metrics(NamedTuple):
@@ -46,6 +54,8 @@ class Metrics(NamedTuple):
     kkt: jax.Array  # the planner's KKT residual (unrolled) or the solve's violation (implicit)
     converged: jax.Array  # implicit: the solve converged; unrolled: True
     used: jax.Array  # index into USED
+    iterations: jax.Array  # implicit: the solve's iterations; unrolled: K
+    step_scale: jax.Array  # the fraction of the optimiser's step taken (below 1 after backtracking)
     finite: jax.Array
     controls: jax.Array  # the plan on the model's grid (N + 1, m) and its states under the model (N + 1, n)
     states: jax.Array
@@ -63,6 +73,10 @@ class Program:
         self.model, self.nlp, self.config = model, nlp, config
         self.planner = UnrolledPlanner(nlp, config.planner)
         self.isolve = make_implicit_solve(nlp, config.implicit_solver) if config.gradient == "implicit" else None
+        # The interior point restarts from the last solve's point *and* multipliers (a primal-dual warm start): from
+        # the point alone it re-centres from mu = 0.1, often slower than from the initial guess.
+        ip = config.gradient == "implicit" and isinstance(config.implicit_solver, InteriorPoint)
+        self.cold = config.implicit_solver.cold_start(nlp) if ip else None
         opt = config.optimizer
         self.optimizer = optax.adam(opt) if isinstance(opt, float) else opt
         self.expert = (jnp.asarray(expert_controls), jnp.asarray(expert_states))
@@ -90,10 +104,14 @@ class Program:
             return self.optimizer.init(train)
 
     def init_carry(self, train: Any, frozen: Any, consts: Any) -> Any:
-        """The planner's starting state (unrolled) or starting point (implicit) at the initial guess."""
+        """The planner's starting state (unrolled), or (implicit) the starting point with what backtracking needs:
+        the last parameters and optimiser state whose plan converged, and the step's scale."""
         data = self.data(train, frozen, consts)
         if self.config.gradient == "implicit":
-            return jnp.asarray(self.nlp.initial_guess(data))
+            z = jnp.asarray(self.nlp.initial_guess(data))
+            return {"z": z, "warm": None if self.cold is None else self.cold(data, z),
+                    "good": (train, self.init_opt(train)), "has_good": jnp.asarray(False),
+                    "scale": jnp.asarray(1.0, jnp.float64)}
         return self.planner.reset(data)
 
     # ---- the gradients ---------------------------------------------------------------------------------------
@@ -108,10 +126,10 @@ class Program:
         (value, (new, plan)), grad = jax.value_and_grad(objective, has_aux=True)(train)
         return value, grad, new, plan
 
-    def _implicit(self, train, frozen, consts, z0):
+    def _implicit(self, train, frozen, consts, z0, warm=None):
         def objective(tr):
             data = self.data(tr, frozen, consts)
-            sol = self.isolve(data.params, data.x0, z0)
+            sol = self.isolve(data.params, data.x0, z0 if warm is None else warm)
             value, plan = self.loss(sol.z, data, consts["loss"])
             return value, (sol, plan)
 
@@ -119,6 +137,8 @@ class Program:
         finite = jnp.isfinite(value) & _all_finite(grad)
         ok = sol.converged & finite
         z_next = jnp.where(jnp.all(jnp.isfinite(sol.z)), sol.z, z0)
+        if self.config.on_failure == "backtrack":  # the next solve starts where the last converged one ended
+            return value, grad, jnp.where(ok, sol.z, z0), plan, sol, ok, jnp.where(ok, 1, 4)
         if self.config.on_failure == "skip":
             return value, grad, z_next, plan, sol, ok, jnp.where(ok, 1, 3)
 
@@ -134,27 +154,47 @@ class Program:
 
     def _iteration(self, train, opt_state, carry, frozen, consts, reset):
         TRACES["iteration"] += 1
+        scale = jnp.asarray(1.0, jnp.float64)
         if self.config.gradient == "implicit":
-            start = jnp.asarray(self.nlp.initial_guess(self.data(train, frozen, consts)))
-            carry = jnp.where(reset, start, carry)
-            value, grad, carry, plan, sol, ok, used = self._implicit(train, frozen, consts, carry)
-            kkt, converged = sol.violation, sol.converged
+            data = jax.lax.stop_gradient(self.data(train, frozen, consts))
+            start = jnp.asarray(self.nlp.initial_guess(data))
+            z0 = jnp.where(reset, start, carry["z"])
+            warm = None
+            if self.cold is not None:
+                warm = jax.tree.map(lambda a, b: jnp.where(reset, a, b), self.cold(data, start), carry["warm"])
+            value, grad, z_next, plan, sol, ok, used = self._implicit(train, frozen, consts, z0, warm)
+            kkt, converged, iterations, scale = sol.violation, sol.converged, sol.iterations, carry["scale"]
         else:
             data = jax.lax.stop_gradient(self.data(train, frozen, consts))
             carry = jax.lax.cond(reset, lambda: self.planner.reset(data), lambda: carry)
             value, grad, carry, plan = self._unrolled(train, frozen, consts, carry)
             kkt, converged, ok, used = self.planner.kkt(carry), jnp.asarray(True), jnp.asarray(True), 0
+            iterations = jnp.asarray(self.config.unroll)
         # A gradient the implicit mode refused (a solve that did not converge) is a skip, not a failure: the run
         # stops only at a non-finite loss, or a non-finite gradient that would have been used.
         finite = jnp.isfinite(value) & (~ok | _all_finite(grad))
         apply = ok & finite & _all_finite(grad)
         with optax_promotion():
             updates, new_opt = self.optimizer.update(grad, opt_state, train)
-        new_train = optax.apply_updates(train, updates)
+        new_train = optax.apply_updates(train, jax.tree.map(lambda u: (scale * u).astype(u.dtype), updates))
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(apply, a, b), new, old)  # noqa: E731
         norm = optax.tree.norm(grad)
-        metrics = Metrics(value, norm, kkt, converged, jnp.where(apply, used, 3), finite, *plan)
-        return keep(new_train, train), keep(new_opt, opt_state), carry, metrics
+        next_train, next_opt = keep(new_train, train), keep(new_opt, opt_state)
+        if self.config.gradient == "implicit":
+            back = (used == 4) & carry["has_good"]  # a failed solve with somewhere to go back to
+            finite = finite | back  # a non-finite plan there is what backtracking is for, not a reason to stop
+            used = jnp.where(used == 4, jnp.where(back, 4, 3), used)
+            pick = lambda when, a, b: jax.tree.map(lambda x, y: jnp.where(when, x, y), a, b)  # noqa: E731
+            next_train, next_opt = pick(back, carry["good"], (next_train, next_opt))
+            # The next warm start: this solve's end if it converged, else the start it was given.
+            warm_next = None if warm is None else pick(sol.converged, sol.warm, warm)
+            carry = {"z": z_next, "warm": warm_next, "good": pick(apply, (train, opt_state), carry["good"]),
+                     "has_good": carry["has_good"] | apply,
+                     "scale": jnp.where(apply, jnp.minimum(1.0, RECOVER * scale), jnp.where(back, BACKTRACK * scale,
+                                                                                            scale))}
+        metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == 4), used, 3), iterations, scale,
+                          finite, *plan)
+        return next_train, next_opt, carry, metrics
 
 
 def loss_weights(loss: str) -> jax.Array:

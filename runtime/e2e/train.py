@@ -41,7 +41,7 @@ from ..transcriptions.base import transcribe
 from .config import E2EConfig
 from .evaluate import E2EEvaluation, evaluate_learned
 from .expert import expert_from_dataset
-from .step import TRACES, USED, Program, loss_weights
+from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
 
@@ -58,8 +58,10 @@ class E2EReport:
         history: ``[(iteration, imitation_loss, planner_kkt), ...]``, one row per iteration (``iteration`` counts
             from 0; the loss is that of the plan of the parameters before the iteration's update).
         snapshots: ``[(iteration, controls, states), ...]``, plans kept for the training figure.
-        counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``).
-        status: ``"completed"`` or ``"non_finite"`` (the run stopped at a non-finite loss or gradient).
+        counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``,
+            ``backtracked``).
+        status: ``"completed"``, ``"non_finite"`` (the run stopped at a non-finite loss or gradient) or ``"stalled"``
+            (backtracking cut the step below ``MIN_STEP_SCALE``: the planner could not solve any nearby model).
         compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
         init_seconds: the system-identification fit that started the run (``init="sysid"``), else 0.
     """
@@ -254,19 +256,27 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
             snapshots.append((it, np.asarray(m.controls), np.asarray(m.states)))
         if bar is not None:
             bar.update(1)
-            bar.set_postfix_str(f"loss {float(m.loss):.3e}")
+            bar.set_postfix_str(f"loss {float(m.loss):.3e}, solve {int(m.iterations)} it"
+                                + (f", step x{float(m.step_scale):.2g}" if float(m.step_scale) < 1.0 else ""))
         if path is not None and (it + 1) % every == 0:
             save(it + 1)
         it += 1
+        if config.gradient == "implicit" and float(carry["scale"]) < MIN_STEP_SCALE:
+            status = "stalled"
+            message = (f"iteration {it - 1}: the model's planning problem could not be solved after any step down to "
+                       f"{MIN_STEP_SCALE:g} of the optimiser's (backtracking); stopped with the last parameters "
+                       f"whose plan converged")
+            break
     if bar is not None:
         bar.close()
     if path is not None and status == "completed" and it > start and it % every:
         save(it)
     seconds = time.perf_counter() - t0
-    if counts["skipped"] or counts["fallback_unrolled"]:
+    unsolved = counts["skipped"] + counts["fallback_unrolled"] + counts["backtracked"]
+    if unsolved:
         message = (message + "; " if message else "") + (
-            f"implicit solve not converged on {counts['skipped'] + counts['fallback_unrolled']} iterations "
-            f"({counts['skipped']} skipped, {counts['fallback_unrolled']} unrolled instead)")
+            f"implicit solve not converged on {unsolved} iterations ({counts['skipped']} skipped, "
+            f"{counts['fallback_unrolled']} unrolled instead, {counts['backtracked']} backtracked)")
     theta = model.combine(train["model"], frozen["model"])
     spec_params = {**consts["spec"], **train["cost"]}
     evaluation = evaluate_learned(model, theta, spec_params, expert, transcription, reaim=config.reaim)

@@ -73,8 +73,8 @@ def test_kill_and_resume_continues_bit_for_bit(cancer, tmp_path):
 
 def test_implicit_solves_that_do_not_converge_are_skipped_or_unrolled_and_counted(cancer):
     stalled = Extragradient(tol=1e-12, max_iter=2)
-    skipped = _run(cancer, E2EConfig(gradient="implicit", implicit_solver=stalled, iterations=3))
-    assert skipped.counts == {"unrolled": 0, "implicit": 0, "fallback_unrolled": 0, "skipped": 3}
+    skipped = _run(cancer, E2EConfig(gradient="implicit", implicit_solver=stalled, iterations=3, on_failure="skip"))
+    assert skipped.counts == {"unrolled": 0, "implicit": 0, "fallback_unrolled": 0, "skipped": 3, "backtracked": 0}
     guess = skipped.model.init_params()
     assert all(skipped.learned[k] == float(guess[k]) for k in guess)  # no update from a non-converged solve
     assert "3 skipped" in skipped.message

@@ -2,14 +2,15 @@ r"""``InteriorPoint``: a second-order primal-dual interior-point NLP solver (aft
 
 * :mod:`.solver`: the frozen configuration ``InteriorPoint`` (validation, the :class:`AbstractPureSolver` hooks and the
   ``NLPResult`` report);
-* :mod:`.loop`: the pure ``(data, z0) -> InteriorPointSolution``, one ``lax.while_loop`` of barrier Newton steps with
-  a merit line search;
+* :mod:`.loop`: the pure ``(data, z0 or WarmStart) -> InteriorPointSolution``, one ``lax.while_loop`` of barrier
+  Newton steps with a filter line search;
 * :mod:`.kkt`: the Newton system's inertia-corrected dense factorisation;
 * :mod:`.problem`: slacks, bounds, scaling and the exact derivatives;
 * :mod:`.implicit`: the ``jax.custom_vjp`` (implicit function theorem) that makes the solve differentiable.
 """
 
 from .loop import InteriorPointSolution as InteriorPointSolution
+from .loop import WarmStart as WarmStart
 from .solver import InteriorPoint as InteriorPoint
 
-__all__ = ["InteriorPoint", "InteriorPointSolution"]
+__all__ = ["InteriorPoint", "InteriorPointSolution", "WarmStart"]

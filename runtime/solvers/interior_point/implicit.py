@@ -96,7 +96,7 @@ def differentiable(raw: Callable[[Any, Any], InteriorPointSolution],
 
     def bwd(res, cot):
         data, z0, out = res
-        return _data_vjp(problem, data, out, cot), jnp.zeros_like(z0)
+        return _data_vjp(problem, data, out, cot), jax.tree.map(jnp.zeros_like, z0)
 
     solve.defvjp(fwd, bwd)
     return solve

@@ -42,7 +42,7 @@ from ...status import Status
 from .kkt import factorize_with_inertia, solve
 from .problem import Layout
 
-__all__ = ["InteriorPointSolution", "make_solve_fn"]
+__all__ = ["InteriorPointSolution", "WarmStart", "make_solve_fn"]
 
 RUNNING = -1
 MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 0.1, 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -56,6 +56,25 @@ THETA_MIN_FACT, THETA_MAX_FACT, FILTER_SIZE = 1e-4, 1e4, 32
 # INFEASIBLE: the fraction-to-the-boundary rule shrinks every step towards bounds that block all progress.
 STALL_STEP, STALL_COUNT = 1e-10, 3
 EPS = float(np.finfo(np.float64).eps)
+# A primal-dual warm start (IPOPT's warm_start_init_point): the barrier parameter it restarts from (the last solve's
+# ~tol/10 would leave no room to re-centre when the active set moves) and the push off the bounds (relative).
+WARM_MU, WARM_PUSH = 1e-6, 1e-9
+
+
+class WarmStart(NamedTuple):
+    """Where a solve starts, in the barrier problem's own terms: a cold start (:func:`make_solve_fn`'s ``cold``,
+    IPOPT's defaults) or the end of an earlier solve (``InteriorPointSolution.warm``: its point, multipliers and
+    scaling, restarted at ``mu = WARM_MU``). Every field is a float array, so a batch or a ``jnp.where`` between a
+    cold and a warm start is one program; ``fresh`` (1.0 or 0.0) says to measure the scaling at the start."""
+
+    x: jax.Array
+    lam: jax.Array
+    zl: jax.Array
+    zu: jax.Array
+    mu: jax.Array
+    sigma: jax.Array
+    row_scale: jax.Array
+    fresh: jax.Array
 
 
 class InteriorPointSolution(NamedTuple):
@@ -73,6 +92,7 @@ class InteriorPointSolution(NamedTuple):
         mu: the final barrier parameter.
         active_lower, active_upper: variables held at a bound (multiplier larger than the gap to it);
         active_rows: constraint rows held at a bound (equalities, and inequalities whose slack is held).
+        warm: a :class:`WarmStart` from this solution, for the next solve of a nearby problem.
     """
 
     z: jax.Array
@@ -87,6 +107,7 @@ class InteriorPointSolution(NamedTuple):
     active_lower: jax.Array
     active_upper: jax.Array
     active_rows: jax.Array
+    warm: WarmStart
 
 
 class _State(NamedTuple):
@@ -119,8 +140,11 @@ def _fraction_to_boundary(v, dv, tau):
 
 
 def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
-                  second_order_correction: bool = True) -> Callable[[Any, Any], InteriorPointSolution]:
-    """The pure solve ``(data, z0) -> InteriorPointSolution`` (not jitted; see the module docstring)."""
+                  second_order_correction: bool = True) -> tuple[Callable[[Any, Any], InteriorPointSolution],
+                                                                 Callable[[Any, Any], WarmStart]]:
+    """``(solve, cold)``: the pure solve ``(data, start) -> InteriorPointSolution``, where ``start`` is the NLP's
+    variables ``z0`` or a :class:`WarmStart`, and ``cold(data, z0) -> WarmStart``, IPOPT's default start from ``z0``
+    (neither jitted; see the module docstring)."""
     n, m = layout.n, layout.m
     hl, hu = jnp.asarray(layout.has_lower), jnp.asarray(layout.has_upper)
     xl, xu = jnp.asarray(layout.x_lower), jnp.asarray(layout.x_upper)
@@ -135,10 +159,20 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
         gl, gu = gaps(x)
         return jnp.sum(jnp.where(hl, jnp.log(gl), 0.0)) + jnp.sum(jnp.where(hu, jnp.log(gu), 0.0))
 
-    def solve_fn(data: Any, z0: Any) -> InteriorPointSolution:
-        w0 = jnp.asarray(z0) / scale
-        x0 = layout.start(w0, data)
+    def cold(data: Any, z0: Any) -> WarmStart:
+        x0 = layout.start(jnp.asarray(z0) / scale, data)
+        one = jnp.ones((), x0.dtype)
+        return WarmStart(x0, jnp.zeros(m, x0.dtype), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one,
+                         one, jnp.ones(m, x0.dtype), one)
+
+    def solve_fn(data: Any, start: Any) -> InteriorPointSolution:
+        ws = start if isinstance(start, WarmStart) else cold(data, start)
+        # A warm point sits on its active bounds up to the barrier's ~mu: keep it (barely) inside.
+        push = WARM_PUSH * (1.0 + jnp.maximum(jnp.abs(xl), jnp.abs(xu)))
+        x0 = jnp.where(hl, jnp.maximum(ws.x, xl + push), ws.x)
+        x0 = jnp.where(hu, jnp.minimum(x0, xu - push), x0)
         dtype = x0.dtype
+        fresh = ws.fresh > 0.5
 
         def error(x, lam, zl, zu, grad, g, jac, mu):
             """IPOPT's E_mu (its eq. 5) with s_max = 100."""
@@ -157,8 +191,8 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data)
             # The scaling is IPOPT's, measured at the start (the first iteration's point; lam = 0 there).
             first_sigma, first_rows = layout.scaling(grad_f, jac_c)
-            sigma = jnp.where(st.k == 0, first_sigma, st.sigma)
-            row_scale = jnp.where(st.k == 0, first_rows, st.row_scale)
+            sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
+            row_scale = jnp.where((st.k == 0) & fresh, first_rows, st.row_scale)
             pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
             finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in (pt.f, pt.grad, pt.g, pt.jac, pt.hess)]))
             kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
@@ -291,13 +325,12 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                           st.k + move.astype(st.k.dtype), status, kkt, pt.objective, pt.violation, stalls, sigma,
                           row_scale)
 
-        zeros = lambda k: jnp.zeros(k, dtype)  # noqa: E731
         one = jnp.ones((), dtype)
         empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
         int0 = jnp.array(0, jnp.int32)
-        st0 = _State(x0, zeros(m), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one, one, one, one,
+        st0 = _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, one, one, one,
                      empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one, jnp.nan * one,
-                     jnp.inf * one, int0, one, jnp.ones(m, dtype))
+                     jnp.inf * one, int0, ws.sigma, ws.row_scale)
         st = jax.lax.while_loop(lambda s: s.status == RUNNING, body, st0)
 
         gl, gu = gaps(st.x)
@@ -310,6 +343,8 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             z=st.x[:n] * scale, objective=st.objective, multipliers=y,
             bound_multipliers=(st.zl - st.zu)[:n] / (st.sigma * scale), iterations=st.k, status=st.status,
             kkt_error=st.kkt, violation=st.violation, mu=st.mu, active_lower=held_l[:n], active_upper=held_u[:n],
-            active_rows=rows_active)
+            active_rows=rows_active,
+            warm=WarmStart(st.x, st.lam, st.zl, st.zu, jnp.maximum(st.mu, WARM_MU), st.sigma, st.row_scale,
+                           jnp.zeros((), dtype)))
 
-    return solve_fn
+    return solve_fn, cold

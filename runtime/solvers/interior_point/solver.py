@@ -13,7 +13,7 @@ from ...status import Status
 from ..base import AbstractNLPSolver, ScaledProblem, cached, constraint_violation, initial_point
 from ..pure import AbstractPureSolver, ScaledEvaluation
 from .implicit import differentiable
-from .loop import InteriorPointSolution, make_solve_fn
+from .loop import InteriorPointSolution, WarmStart, make_solve_fn
 from .problem import Layout
 
 __all__ = ["InteriorPoint"]
@@ -95,6 +95,12 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         return self._compiled(nlp).raw
 
+    def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
+        """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``: what
+        :meth:`pure_solve` does with an array ``z0``, as a start that a ``jnp.where`` can choose against the
+        ``warm`` of an earlier solution (one program for both)."""
+        return self._compiled(nlp).cold
+
     def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
         return initial_point(nlp, data, z0)
 
@@ -137,6 +143,6 @@ class _Compiled(ScaledEvaluation):
 
     def __init__(self, problem: ScaledProblem, solver: InteriorPoint):
         super().__init__(problem)
-        loop = make_solve_fn(Layout(problem), solver.tol, solver.constr_viol_tol, solver.max_iter,
-                             solver.second_order_correction)
+        loop, self.cold = make_solve_fn(Layout(problem), solver.tol, solver.constr_viol_tol, solver.max_iter,
+                                        solver.second_order_correction)
         self.raw = differentiable(loop, problem)
