@@ -246,8 +246,9 @@ def main() -> None:
     lr.add_argument("--lr", type=float, default=None, help="node: Adam's rate (default 1e-3)")
     lr.add_argument("--reset-every", type=int, default=1000)
     lr.add_argument("--init", choices=["guess", "sysid"], default="sysid", help="node: where theta starts")
-    lr.add_argument("--sysid-rounds", type=int, default=None, metavar="R",
-                    help="node, init sysid: rounds of the fit (default 1; 0 or more: SysidConfig(rounds=R))")
+    lr.add_argument("--sysid-rounds", type=int, default=6, metavar="R",
+                    help="node, init sysid: rounds of the fit, SysidConfig(rounds=R) (default 6, Table C's; "
+                         "E2EConfig's own init='sysid' is 1 round)")
     lr.add_argument("--loss", choices=["controls", "states", "both"], default="controls",
                     help="the imitation loss (controls: published)")
     lr.add_argument("--hidden", type=int, nargs="+", default=None, help="node: widths (default: Table D's)")
