@@ -38,6 +38,7 @@ __all__ = ["MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weigh
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
 USED = ("unrolled", "implicit", "fallback_unrolled", "skipped", "backtracked")
+SKIPPED, BACKTRACKED = USED.index("skipped"), USED.index("backtracked")
 # on_failure="backtrack": a step whose model the planner cannot solve is taken again this much shorter; every
 # converged solve lets the next step grow by RECOVER (slower than the cut, so the failed length is not retried at
 # once), up to the optimiser's own step.
@@ -138,9 +139,9 @@ class Program:
         ok = sol.converged & finite
         z_next = jnp.where(jnp.all(jnp.isfinite(sol.z)), sol.z, z0)
         if self.config.on_failure == "backtrack":  # the next solve starts where the last converged one ended
-            return value, grad, jnp.where(ok, sol.z, z0), plan, sol, ok, jnp.where(ok, 1, 4)
+            return value, grad, jnp.where(ok, sol.z, z0), plan, sol, ok, jnp.where(ok, 1, BACKTRACKED)
         if self.config.on_failure == "skip":
-            return value, grad, z_next, plan, sol, ok, jnp.where(ok, 1, 3)
+            return value, grad, z_next, plan, sol, ok, jnp.where(ok, 1, SKIPPED)
 
         def fallback(_):
             data = jax.lax.stop_gradient(self.data(train, frozen, consts))
@@ -155,17 +156,16 @@ class Program:
     def _iteration(self, train, opt_state, carry, frozen, consts, reset):
         TRACES["iteration"] += 1
         scale = jnp.asarray(1.0, jnp.float64)
+        data = jax.lax.stop_gradient(self.data(train, frozen, consts))
         if self.config.gradient == "implicit":
-            data = jax.lax.stop_gradient(self.data(train, frozen, consts))
             start = jnp.asarray(self.nlp.initial_guess(data))
             z0 = jnp.where(reset, start, carry["z"])
             warm = None
-            if self.cold is not None:
-                warm = jax.tree.map(lambda a, b: jnp.where(reset, a, b), self.cold(data, start), carry["warm"])
+            if self.cold is not None:  # a cond, not a select: the cold start costs a model evaluation
+                warm = jax.lax.cond(reset, lambda: self.cold(data, start), lambda: carry["warm"])
             value, grad, z_next, plan, sol, ok, used = self._implicit(train, frozen, consts, z0, warm)
             kkt, converged, iterations, scale = sol.violation, sol.converged, sol.iterations, carry["scale"]
         else:
-            data = jax.lax.stop_gradient(self.data(train, frozen, consts))
             carry = jax.lax.cond(reset, lambda: self.planner.reset(data), lambda: carry)
             value, grad, carry, plan = self._unrolled(train, frozen, consts, carry)
             kkt, converged, ok, used = self.planner.kkt(carry), jnp.asarray(True), jnp.asarray(True), 0
@@ -181,9 +181,9 @@ class Program:
         norm = optax.tree.norm(grad)
         next_train, next_opt = keep(new_train, train), keep(new_opt, opt_state)
         if self.config.gradient == "implicit":
-            back = (used == 4) & carry["has_good"]  # a failed solve with somewhere to go back to
+            back = (used == BACKTRACKED) & carry["has_good"]  # a failed solve with somewhere to go back to
             finite = finite | back  # a non-finite plan there is what backtracking is for, not a reason to stop
-            used = jnp.where(used == 4, jnp.where(back, 4, 3), used)
+            used = jnp.where(used == BACKTRACKED, jnp.where(back, BACKTRACKED, SKIPPED), used)
             pick = lambda when, a, b: jax.tree.map(lambda x, y: jnp.where(when, x, y), a, b)  # noqa: E731
             next_train, next_opt = pick(back, carry["good"], (next_train, next_opt))
             # The next warm start: this solve's end if it converged, else the start it was given.
@@ -192,8 +192,8 @@ class Program:
                      "has_good": carry["has_good"] | apply,
                      "scale": jnp.where(apply, jnp.minimum(1.0, RECOVER * scale), jnp.where(back, BACKTRACK * scale,
                                                                                             scale))}
-        metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == 4), used, 3), iterations, scale,
-                          finite, *plan)
+        metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == BACKTRACKED), used, SKIPPED),
+                          iterations, scale, finite, *plan)
         return next_train, next_opt, carry, metrics
 
 
