@@ -147,7 +147,8 @@ def node_row(name: str, args) -> dict:
             init = SysidConfig(model="node", hidden=tuple(width), seed=args.seed, rounds=args.sysid_rounds, reaim=0)
         config = E2EConfig(model="node", gradient=args.gradient, unroll=args.unroll, iterations=args.iterations,
                            optimizer=args.lr, reset_every=args.reset_every, init=init, hidden=tuple(width),
-                           seed=args.seed, implicit_solver=solver, loss=args.loss, reaim=args.reaim)
+                           seed=args.seed, implicit_solver=solver, loss=args.loss, reaim=args.reaim,
+                           soft_state_bounds=args.soft_state_bounds or None)
         report = run_e2e(name, config, progress=False)
     except Exception as exc:  # noqa: BLE001 -- never lose the table
         return {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
@@ -255,6 +256,9 @@ def main() -> None:
     lr.add_argument("--reaim", type=int, default=None, metavar="K", help="re-aims of the final plan (default: "
                     "the library's, 6 for a Neural ODE)")
     lr.add_argument("--seed", type=int, default=0)
+    lr.add_argument("--soft-state-bounds", type=float, default=10.0, metavar="C",
+                    help="node: plan the learned model with elastic final-state bounds, penalty C max(1, |J*|) "
+                         "(default 10; 0: hard bounds; E2EConfig.soft_state_bounds)")
     lr.add_argument("--implicit-solver", choices=["interior_point", "extragradient"], default="interior_point",
                     help="node, implicit gradients: the solve to tolerance (default interior_point: Newton steps; the "
                          "extragradient needs thousands of steps per solve where final values are required)")

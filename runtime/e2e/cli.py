@@ -37,6 +37,9 @@ def add_parser(sub) -> None:
     s.add_argument("--implicit-solver", choices=["extragradient", "interior_point"], default="extragradient",
                    help="implicit mode: the solve to tolerance (interior_point: Newton steps, much faster where final "
                         "values are required; docs/notes/e2e-node.md)")
+    s.add_argument("--soft-state-bounds", type=float, default=None, metavar="C",
+                   help="plan the learned model with elastic final-state bounds, penalty C max(1, |J*|) per unit of "
+                        "scaled violation (J*: the expert's cost; 10 in Table D). Default: hard bounds")
     s.add_argument("--learn-cost", nargs="+", default=(), metavar="NAME", help="also learn these cost weights")
     s.add_argument("--init", choices=["guess", "sysid"], default="guess",
                    help="where theta starts: the spec's guesses / random weights, or a system-identification fit "
@@ -80,7 +83,8 @@ def run(args) -> int:
     try:
         config = E2EConfig(model=args.model, gradient=args.gradient, on_failure=args.on_failure,
                            learn_cost=tuple(args.learn_cost), seed=args.seed, reset_every=args.reset_every,
-                           init=args.init, implicit_solver=_implicit_solver(args.implicit_solver), **options)
+                           init=args.init, implicit_solver=_implicit_solver(args.implicit_solver),
+                           soft_state_bounds=args.soft_state_bounds, **options)
     except ValueError as exc:
         return _usage(str(exc))
     from ..loader import load

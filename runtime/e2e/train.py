@@ -185,6 +185,9 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         raise ValueError(f"run_e2e: progress must be None, True or False, got {progress!r}")
     system = system if isinstance(system, System) else load(system)
     transcription = SingleShooting() if transcription is None else transcription
+    if config.soft_state_bounds is not None and not isinstance(transcription, SingleShooting):
+        raise ValueError(f"run_e2e: soft_state_bounds needs a SingleShooting transcription, got "
+                         f"{type(transcription).__name__}")
     model = _model(system, config)  # a parametric model refuses a spec without learnable parameters
     path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
     resuming = resume and path.is_file()
@@ -195,12 +198,16 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         expert = solve(system, transcription, Ipopt(), resimulate=False)
     if not expert.converged:
         raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
+    fit_transcription = transcription
+    if config.soft_state_bounds is not None:  # the model is planned with elastic final-state bounds, the fit is not
+        rho = config.soft_state_bounds * max(1.0, abs(float(expert.cost)))
+        transcription = dataclasses.replace(transcription, soft_state_bounds=rho)
     fitted, start_id, init_seconds = None, None, 0.0
     if theta0 is not None:
         start_id, init_seconds = _tree_id(theta0), -1.0  # -1: given, not fitted here
     elif config.sysid_config() is not None and not resuming:
         t_init = time.perf_counter()
-        fitted = run_sysid(system, config.sysid_config(), transcription=transcription, progress=progress)
+        fitted = run_sysid(system, config.sysid_config(), transcription=fit_transcription, progress=progress)
         init_seconds = time.perf_counter() - t_init
         if not fitted.converged:
             raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "

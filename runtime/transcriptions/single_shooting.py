@@ -49,7 +49,14 @@ class SingleShooting(AbstractTranscription):
 
     A free final time (``system.free_horizon``) is the last entry of z: the nodes are t_k = T s_k and the steps
     T (s_{k+1} - s_k) (``grid.free_node_times``: the time scaling to tau in [0, 1]), and phi is evaluated at T.
-    Layout of z: ``[u_0..u_N ((N + 1) m), T (free final time only)]``.
+    Layout of z: ``[u_0..u_N ((N + 1) m), p, n (soft state bounds only), T (free final time only)]``.
+
+    Soft state bounds (``soft_state_bounds=rho``): each final-state bound row becomes elastic,
+    ``lo_i <= x_N,i / s_i + p_i - n_i <= hi_i`` with slacks ``p, n >= 0`` and ``rho * sum(p + n)`` added to the cost
+    (the L1 exact penalty of IPOPT's restoration phase and acados' soft constraints). Where the hard problem is
+    feasible and ``rho`` exceeds the rows' multipliers the solution is the same, slacks 0; where it is not (a
+    learned model that cannot keep a population positive), the plan violates the bound as little as it can
+    instead of the solve failing. Required final values stay hard.
 
     Attributes:
         controls: N, the number of control intervals (N + 1 control nodes).
@@ -62,6 +69,8 @@ class SingleShooting(AbstractTranscription):
             either way. Measurements: docs/notes/single-shooting-checkpoint.md.
         grid: None (uniform), or the N + 1 normalised control nodes 0 = s_0 < ... < s_N = 1 (see ``grid.py``);
             the integrator steps follow it. ``SingleShooting.on_grid(grid)`` sets ``controls`` from it.
+        soft_state_bounds: None (hard final-state bounds), or the penalty rho > 0 per unit of violation of a
+            bound row (in the row's scale: state / nominal scale) that makes them elastic (above).
     """
 
     label: ClassVar[str] = "single_shooting"
@@ -71,6 +80,7 @@ class SingleShooting(AbstractTranscription):
     enforce_final_state_bounds: bool = True
     checkpoint: bool = True
     grid: Grid | None = None
+    soft_state_bounds: float | None = None
 
     @classmethod
     def on_grid(cls, intervals, **options) -> "SingleShooting":
@@ -96,6 +106,11 @@ class SingleShooting(AbstractTranscription):
         if self.controls < 1:
             raise ValueError(f"SingleShooting: controls must be at least 1, got {self.controls}")
         object.__setattr__(self, "grid", check_grid("SingleShooting", self.grid, self.controls, "controls"))
+        rho = self.soft_state_bounds
+        if rho is not None:
+            if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not (np.isfinite(rho) and rho > 0):
+                raise ValueError(f"SingleShooting: soft_state_bounds must be None or a finite penalty > 0, got {rho!r}")
+            object.__setattr__(self, "soft_state_bounds", float(rho))
 
     def transcribe(self, system: System) -> NLP:
         N, m = self.controls, system.n_controls
@@ -110,6 +125,8 @@ class SingleShooting(AbstractTranscription):
         T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
         integrator = self.integrator
         nU = (N + 1) * m
+        rho = self.soft_state_bounds
+        nS = bounded.size if rho is not None else 0  # elastic rows: slacks p (nS) and n (nS) after the controls
 
         def clock(z):
             """(T, node times): the constants of a fixed horizon, or from the decision T (see grid.free_node_times)."""
@@ -136,10 +153,13 @@ class SingleShooting(AbstractTranscription):
             L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
             return f, L
 
-        def rows(xs, us, ts, params):
+        def slack(z):
+            return z[nU:nU + nS] - z[nU + nS:nU + 2 * nS]  # p - n
+
+        def rows(z, xs, us, ts, params):
             xT = xs[-1]
-            return jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded],
-                                    path_rows(system, params, xs, us, ts)])
+            bound = xT[bounded] / sx[bounded] + (slack(z) if nS else 0.0)
+            return jnp.concatenate([xT[fixed] - final, bound, path_rows(system, params, xs, us, ts)])
 
         def objective_and_constraints(z, data):
             params = data.params
@@ -147,7 +167,8 @@ class SingleShooting(AbstractTranscription):
             T, ts = clock(z)
             us = controls_of(z)
             xs, cost = run_with_cost(f, L, data.x0, us, ts, self.checkpoint)
-            return cost[-1] + system.terminal_cost(xs[-1], T, params), rows(xs, us, ts, params)
+            penalty = rho * jnp.sum(z[nU:nU + 2 * nS]) if nS else 0.0
+            return cost[-1] + system.terminal_cost(xs[-1], T, params) + penalty, rows(z, xs, us, ts, params)
 
         def objective(z, data):
             return objective_and_constraints(z, data)[0]
@@ -157,7 +178,7 @@ class SingleShooting(AbstractTranscription):
             f, _ = fields(data.params)
             _, ts = clock(z)
             us = controls_of(z)
-            return rows(run(f, data.x0, us, ts, self.checkpoint), us, ts, data.params)
+            return rows(z, run(f, data.x0, us, ts, self.checkpoint), us, ts, data.params)
 
         def unravel(z, data):
             f, _ = fields(data.params)
@@ -167,7 +188,7 @@ class SingleShooting(AbstractTranscription):
 
         def initial_guess(data):
             del data
-            return jnp.asarray(np.concatenate([guess_controls(system, N + 1).ravel(), T_guess]))
+            return jnp.asarray(np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess]))
 
         p_lo, p_hi = path_bounds(system, N + 1)
         n_rows = fixed.size + bounded.size + p_lo.size
@@ -176,14 +197,15 @@ class SingleShooting(AbstractTranscription):
             constraints=constraints if n_rows else None,
             c_lower=np.concatenate([np.zeros(fixed.size), arrays["x_lower"][bounded] / sx[bounded], p_lo]),
             c_upper=np.concatenate([np.zeros(fixed.size), arrays["x_upper"][bounded] / sx[bounded], p_hi]),
-            z_lower=np.concatenate([np.tile(arrays["u_lower"], N + 1), T_lo]),
-            z_upper=np.concatenate([np.tile(arrays["u_upper"], N + 1), T_hi]),
+            z_lower=np.concatenate([np.tile(arrays["u_lower"], N + 1), np.zeros(2 * nS), T_lo]),
+            z_upper=np.concatenate([np.tile(arrays["u_upper"], N + 1), np.full(2 * nS, np.inf), T_hi]),
             initial_guess=initial_guess,
             unravel=unravel,
             jacobian_sparsity=None,
-            z_scale=np.concatenate([np.tile(control_scale(system), N + 1), T_scale]),
+            z_scale=np.concatenate([np.tile(control_scale(system), N + 1), np.ones(2 * nS), T_scale]),
             name=f"{system.name}/single_shooting(N={N}, {type(integrator).__name__}"
-                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''})",
+                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''}"
+                 f"{f', soft bounds {rho:g}' if nS else ''})",
             objective_and_constraints=objective_and_constraints if n_rows else None,
         )
 
@@ -192,4 +214,6 @@ class SingleShooting(AbstractTranscription):
         T = sample_final_time(system, final_time)
         times, _ = node_times(self.grid, self.controls, T)
         U = np.asarray(controls(times), dtype=np.float64).reshape(-1)
+        if self.soft_state_bounds is not None and self.enforce_final_state_bounds:
+            U = np.concatenate([U, np.zeros(2 * bounded_free_states(system).size)])  # the slacks: no violation
         return np.concatenate([U, [T]]) if system.free_horizon else U
