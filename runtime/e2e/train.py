@@ -198,10 +198,14 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         expert = solve(system, transcription, Ipopt(), resimulate=False)
     if not expert.converged:
         raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
-    fit_transcription = transcription
-    if config.soft_state_bounds is not None:  # the model is planned with elastic final-state bounds, the fit is not
+    # Elastic final-state bounds (on request) for the plans solved to tolerance: the implicit solve and the judged
+    # plan. The fit and the unrolled planner keep the spec's bounds (its K steps never fail; measured on predator-prey
+    # it imitates 70x better on the hard rows, docs/notes/e2e-node.md).
+    fit_transcription = train_transcription = transcription
+    if config.soft_state_bounds is not None:
         rho = config.soft_state_bounds * max(1.0, abs(float(expert.cost)))
         transcription = dataclasses.replace(transcription, soft_state_bounds=rho)
+        train_transcription = transcription if config.gradient == "implicit" else fit_transcription
     fitted, start_id, init_seconds = None, None, 0.0
     if theta0 is not None:
         start_id, init_seconds = _tree_id(theta0), -1.0  # -1: given, not fitted here
@@ -213,7 +217,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
             raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "
                              f"{failed(fitted)}")
         train, frozen, consts, true = _learnables(system, model, config, fitted.theta)
-    nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), transcription)
+    nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), train_transcription)
     data0 = _data0(consts, train, frozen, model)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
     if expert.controls.shape != grid:
