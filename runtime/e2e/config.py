@@ -83,7 +83,7 @@ class E2EConfig:
             expert's cost; :class:`~myriad.runtime.transcriptions.SingleShooting`'s ``soft_state_bounds``). A learned
             model need not keep a state inside its bounds where the true one does by itself (a predator population
             that the true equation keeps positive); with hard bounds such a model's plan is infeasible. c = 10 leaves
-            the true problem's optimum unchanged on all 11 specs with bounded final states (to 3e-7 of the cost,
+            the true problem's optimum unchanged on all 11 specs with bounded final states (to 1.1e-7 of the cost,
             docs/notes/e2e-node.md). They apply to the plans solved to tolerance (the implicit solve, the judged
             plan), not to the unrolled planner, whose K steps cannot fail. Single shooting only.
         reaim: after training, re-aim the converged plan at the required final values at most this many times from
