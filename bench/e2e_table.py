@@ -130,6 +130,16 @@ TABLE_D_MISSED = ("cartpole", "mountain_car", "pendulum", "predator_prey", "van_
 # cannot keep the predator population >= 0 that the true one keeps by itself, so with hard bounds that plan is
 # infeasible.
 ROW_SETTINGS = {"predator_prey": {"gradient": "unrolled", "iterations": 1500, "soft_state_bounds": 10.0}}
+NODE_DEFAULTS = {"gradient": "implicit", "iterations": 300, "soft_state_bounds": None}
+
+
+def row_options(name: str, args) -> dict:
+    """A row's gradient, iterations and elastic-bound factor: the command line's where given, else ROW_SETTINGS',
+    else NODE_DEFAULTS (a factor of 0 means hard bounds)."""
+    own = {**NODE_DEFAULTS, **ROW_SETTINGS.get(name, {})}
+    options = {k: own[k] if getattr(args, k) is None else getattr(args, k) for k in NODE_DEFAULTS}
+    return {**options, "soft_state_bounds": options["soft_state_bounds"] or None}
+
 DEFECT_TOL, GAP_TOL = 1e-2, 0.05  # Table C's bars (bench/sysid_table.py): final values to 1e-2; "within 5 %"
 
 
@@ -155,14 +165,9 @@ def node_row(name: str, args) -> dict:
         init = args.init
         if init == "sysid" and args.sysid_rounds is not None:  # E2EConfig's own "sysid" is one round
             init = SysidConfig(model="node", hidden=tuple(width), seed=args.seed, rounds=args.sysid_rounds, reaim=0)
-        row = ROW_SETTINGS.get(name, {})
-        gradient = args.gradient or row.get("gradient", "implicit")
-        iterations = args.iterations or row.get("iterations", 300)
-        config = E2EConfig(model="node", gradient=gradient, unroll=args.unroll, iterations=iterations,
-                           optimizer=args.lr, reset_every=args.reset_every, init=init, hidden=tuple(width),
-                           seed=args.seed, implicit_solver=solver, loss=args.loss, reaim=args.reaim,
-                           soft_state_bounds=(row.get("soft_state_bounds") if args.soft_state_bounds is None
-                                              else args.soft_state_bounds) or None)
+        config = E2EConfig(model="node", unroll=args.unroll, optimizer=args.lr, reset_every=args.reset_every,
+                           init=init, hidden=tuple(width), seed=args.seed, implicit_solver=solver, loss=args.loss,
+                           reaim=args.reaim, **row_options(name, args))
         report = run_e2e(name, config, progress=False)
     except Exception as exc:  # noqa: BLE001 -- never lose the table
         return {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),
@@ -221,11 +226,11 @@ def node_table(rows) -> tuple[str, list[str]]:
 
 
 def learn_node(names, args) -> None:
-    gradient, iterations = args.gradient or "implicit", args.iterations or 300
+    default = row_options("", args)  # a name without ROW_SETTINGS: the command line's or NODE_DEFAULTS
+    gradient, iterations = default["gradient"], default["iterations"]
     solve = f" solved by {args.implicit_solver}" if gradient == "implicit" else f" (K = {args.unroll or 5})"
-    rows_own = [f"{n}: {', '.join(f'{k} {v}' for k, v in ROW_SETTINGS[n].items() if getattr(args, k) is None)}"
-                for n in names if n in ROW_SETTINGS]
-    own = "; ".join(r for r in rows_own if not r.endswith(": "))
+    differ = {n: {k: v for k, v in row_options(n, args).items() if v != default[k]} for n in names}
+    own = "; ".join(f"{n}: {', '.join(f'{k} {v}' for k, v in d.items())}" for n, d in differ.items() if d)
     setting = (f"Neural ODE, {gradient} gradients{solve}, {iterations} iterations"
                f"{f' (per row: {own})' if own else ''}, Adam "
                f"{args.lr:g}, reset every {args.reset_every}, init {args.init}"

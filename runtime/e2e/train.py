@@ -201,23 +201,23 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     # Elastic final-state bounds (on request) for the plans solved to tolerance: the implicit solve and the judged
     # plan. The fit and the unrolled planner keep the spec's bounds (its K steps never fail; measured on predator-prey
     # it imitates 70x better on the hard rows, docs/notes/e2e-node.md).
-    fit_transcription = train_transcription = transcription
+    solved = transcription
     if config.soft_state_bounds is not None:
         rho = config.soft_state_bounds * max(1.0, abs(float(expert.cost)))
-        transcription = dataclasses.replace(transcription, soft_state_bounds=rho)
-        train_transcription = transcription if config.gradient == "implicit" else fit_transcription
+        solved = dataclasses.replace(transcription, soft_state_bounds=rho)
     fitted, start_id, init_seconds = None, None, 0.0
     if theta0 is not None:
         start_id, init_seconds = _tree_id(theta0), -1.0  # -1: given, not fitted here
     elif config.sysid_config() is not None and not resuming:
         t_init = time.perf_counter()
-        fitted = run_sysid(system, config.sysid_config(), transcription=fit_transcription, progress=progress)
+        fitted = run_sysid(system, config.sysid_config(), transcription=transcription, progress=progress)
         init_seconds = time.perf_counter() - t_init
         if not fitted.converged:
             raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "
                              f"{failed(fitted)}")
         train, frozen, consts, true = _learnables(system, model, config, fitted.theta)
-    nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), train_transcription)
+    nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])),
+                     solved if config.gradient == "implicit" else transcription)
     data0 = _data0(consts, train, frozen, model)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
     if expert.controls.shape != grid:
@@ -290,7 +290,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
             f"{counts['fallback_unrolled']} unrolled instead, {counts['backtracked']} backtracked)")
     theta = model.combine(train["model"], frozen["model"])
     spec_params = {**consts["spec"], **train["cost"]}
-    evaluation = evaluate_learned(model, theta, spec_params, expert, transcription, reaim=config.reaim)
+    evaluation = evaluate_learned(model, theta, spec_params, expert, solved, reaim=config.reaim)
     learned = {k: float(v) for k, v in theta.items()} if isinstance(model, Parametric) else {}
     learned.update({f"cost.{k}": float(v) for k, v in train["cost"].items()})
     if not evaluation.converged:
