@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 
+from . import programs
+
 __all__ = ["DEFAULT_CACHE_DIR", "ENV_VAR", "cache_dir", "enable_compilation_cache"]
 
 DEFAULT_CACHE_DIR = "~/.cache/myriad/jax"
@@ -45,6 +47,8 @@ def enable_compilation_cache(requested: str | None = None) -> str | None:
 
     current = jax.config.jax_compilation_cache_dir
     if current:
+        if programs.program_folder() is None:
+            programs.set_program_folder(os.path.join(current, "programs"))
         return current
     path = cache_dir(requested)
     if path is None:
@@ -52,4 +56,5 @@ def enable_compilation_cache(requested: str | None = None) -> str | None:
     os.makedirs(path, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    programs.set_program_folder(os.path.join(path, "programs"))
     return path

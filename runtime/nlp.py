@@ -43,6 +43,9 @@ class NLP:
             transcription's F and c come from the same rollout; fusing them halves the integration work of every
             evaluation and of every derivative program built on both (the Lagrangian's Hessian). Must agree with
             ``objective`` and ``constraints``; :meth:`evaluate` falls back to calling them separately.
+        key: what the functions depend on, as text (a spec-generated system's source and a transcription's
+            configuration; :func:`~myriad.runtime.transcriptions.transcribe` sets it), so that their traced
+            programs may be kept on disk for later processes (:mod:`myriad.runtime.programs`); None: never kept.
     """
 
     objective: Callable[[Any, Data], Any]
@@ -57,6 +60,7 @@ class NLP:
     z_scale: np.ndarray | None = None
     name: str = "nlp"
     objective_and_constraints: Callable[[Any, Data], tuple[Any, Any]] | None = None
+    key: str | None = None
 
     def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:
         """``(F(z), c(z))``, fused when the transcription provides it; ``c`` is an empty array without constraints."""

@@ -78,7 +78,33 @@ def simulate(
     p = system.default_params(controls.dtype)
     p.update(params or {})
     x0 = jnp.asarray(system.x0 if x0 is None else x0, dtype=controls.dtype)
-    return _simulate(system, integrator, controls, p, x0)
+    stored = _stored(system, integrator)
+    args = (controls, p, x0)
+    if stored is None or any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(args)):
+        return _simulate(system, integrator, controls, p, x0)
+    # Concrete inputs with the program store on (myriad.runtime.programs): one program per system, integrator and
+    # shapes, read back from disk by a later process instead of traced again.
+    args = jax.tree.map(lambda a: jax.device_put(np.asarray(a, dtype=controls.dtype)), args)
+    stored.compile(*args)
+    return stored(*args)
+
+
+@functools.lru_cache(maxsize=256)
+def _stored_fn(system: System, integrator: AbstractIntegrator, key: str):
+    from .solvers.base import CompiledFunction
+
+    return CompiledFunction(lambda controls, p, x0: _simulate(system, integrator, controls, p, x0), key)
+
+
+def _stored(system: System, integrator: AbstractIntegrator):
+    """The simulation as a stored program, or None (store off, or the system or integrator has no key)."""
+    from . import programs
+    from .solvers.base import program_key
+
+    if programs.program_folder() is None:
+        return None
+    key = program_key(programs.system_key(system), "simulate", programs.describe(integrator))
+    return None if key is None else _stored_fn(system, integrator, key)
 
 
 @functools.partial(jax.jit, static_argnums=(0, 1))

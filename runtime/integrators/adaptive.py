@@ -5,14 +5,15 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
-import diffrax
 import jax.numpy as jnp
 
 from .base import AbstractIntegrator, lerp
 
 __all__ = ["Adaptive"]
 
-_SOLVERS = {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}
+# diffrax (and equinox under it: ~2.5 s of imports) is imported when a step is first traced, not with the package: a
+# process whose programs come from the store (myriad.runtime.programs) never traces one.
+_SOLVERS = ("tsit5", "dopri5", "dopri8")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,9 +66,11 @@ class Adaptive(AbstractIntegrator):
         def field(s, y, args):
             return f(y, lerp(u0, u1, (s - t) / h), s)
 
+        import diffrax
+
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(field),
-            _SOLVERS[self.method](),
+            {"tsit5": diffrax.Tsit5, "dopri5": diffrax.Dopri5, "dopri8": diffrax.Dopri8}[self.method](),
             t0=t,
             t1=t + h,
             dt0=None,

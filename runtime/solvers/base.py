@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import programs
 from ..nlp import NLP, NLPResult, evaluation
 
 __all__ = [
@@ -143,6 +144,7 @@ class ScaledProblem:
     c_upper: np.ndarray
     # (w, data) -> (F, c): fused when the NLP provides objective_and_constraints (see NLP), else both calls.
     evaluate: Callable[[Any, Any], tuple[Any, Any]]
+    key: str | None = None  # the NLP's key (myriad.runtime.programs): what its functions depend on, or None
 
     @classmethod
     def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
@@ -167,6 +169,7 @@ class ScaledProblem:
             c_lower=np.asarray(nlp.c_lower, dtype=np.float64),
             c_upper=np.asarray(nlp.c_upper, dtype=np.float64),
             evaluate=lambda w, data: evaluate_z(w * s, data),
+            key=nlp.key,
         )
 
     @property
@@ -201,6 +204,11 @@ def _signature(args: tuple) -> Hashable:
     return treedef, tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
 
 
+def program_key(*parts: str | None) -> str | None:
+    """A program's key from its parts (an NLP's or system's key, a role, a configuration); None if any is None."""
+    return None if any(p is None for p in parts) else "|".join(parts)
+
+
 class CompiledFunction:
     """``jax.jit(fn)`` compiled ahead of time (``.lower(...).compile()``) once per argument signature.
 
@@ -208,9 +216,15 @@ class CompiledFunction:
     per signature, and calls with arguments of another shape fail loudly instead of recompiling silently.
     """
 
-    def __init__(self, fn: Callable, **jit_kwargs: Any):
+    def __init__(self, fn: Callable, key: str | None = None, **jit_kwargs: Any):
         self._jitted = jax.jit(fn, **jit_kwargs)
         self._executables: dict[Hashable, Any] = {}
+        # With a key (what the closure depends on, see myriad.runtime.programs), the traced program may be kept on
+        # disk for later processes; static arguments and donation are not exported, so such a function has none.
+        self.key = None if jit_kwargs else key
+
+    def lower(self, *args: Any) -> Any:
+        return programs.lower(self._jitted, self.key, args)
 
     def compile(self, *args: Any) -> float:
         """Compile for the signature of ``args`` unless already done; returns the seconds spent (0 if cached)."""
@@ -218,7 +232,7 @@ class CompiledFunction:
         if key in self._executables:
             return 0.0
         start = time.perf_counter()
-        self._executables[key] = self._jitted.lower(*args).compile()
+        self._executables[key] = self.lower(*args).compile()
         return time.perf_counter() - start
 
     def __call__(self, *args: Any) -> Any:
@@ -247,7 +261,7 @@ def compile_many(jobs: list[tuple[CompiledFunction, tuple]]) -> float:
     if not pending:
         return 0.0
     start = time.perf_counter()
-    lowered = [(cf, _signature(args), cf._jitted.lower(*args)) for cf, args in pending]
+    lowered = [(cf, _signature(args), cf.lower(*args)) for cf, args in pending]
     workers = max(1, min(len(lowered), os.cpu_count() or 1))
     if workers == 1:
         executables = [low.compile() for _, _, low in lowered]

@@ -22,6 +22,7 @@ from .base import (
     compile_many,
     constraint_violation,
     initial_point,
+    program_key,
 )
 from .sparse import HessianColouring, compressed_jacobian_fn, dense_from_hvps, hessian_structure, hvp_batch_fn
 
@@ -234,7 +235,8 @@ class _Derivatives:
                     values, jac = stacked(w), jax.jacfwd(stacked)(w)
                 return jnp.concatenate([values[:1], jac[0], values[1:], jac[1:].reshape(-1)])
 
-        self.point = CompiledFunction(point)
+        self.point = CompiledFunction(point, program_key(
+            problem.key, "ipopt.point", "dense" if jacobian_sparsity is None else "sparse"))  # the NLP's own pattern)
         self.jacobian_structure = (rows, cols)
         # Offsets of f, grad, c and the Jacobian values in the packed vector.
         self.layout = np.cumsum([0, 1, n, m, rows.size])
@@ -247,7 +249,7 @@ class _Derivatives:
             return jax.grad(lagrangian)(w)
 
         # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn.
-        self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient))
+        self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient), program_key(problem.key, "ipopt.hvps"))
         self.hvp_batch = n if jacobian_sparsity is None and n <= _DENSE_HVP_MAX else min(n, _HVP_BATCH)
         # Built by `prepare`: the pattern needs a point and data.
         self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None

@@ -25,7 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .base import CompiledFunction, cached, canonical_data
+from .. import programs
+from .base import CompiledFunction, cached, canonical_data, program_key
 
 __all__ = ["AbstractPureSolver", "ScaledEvaluation"]
 
@@ -37,10 +38,11 @@ class ScaledEvaluation:
     def __init__(self, problem: Any):
         self.problem = problem
         f, scale = problem.objective, jnp.asarray(problem.scale)
-        self.objective = CompiledFunction(lambda z, data: f(z / scale, data))
+        self.objective = CompiledFunction(lambda z, data: f(z / scale, data), program_key(problem.key, "objective"))
         if problem.n_constraints:
             c = problem.constraints
-            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data))
+            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data),
+                                                program_key(problem.key, "constraints"))
 
     def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
         """Compile the objective and constraints used to report the result; returns the seconds spent."""
@@ -53,10 +55,10 @@ class ScaledEvaluation:
 class _Programs:
     """The jitted solve of one (problem, solver) pair: for callers, for one member, and vmapped for a batch."""
 
-    def __init__(self, raw: Callable[[Any, Any], Any]):
+    def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None):
         self.jitted = jax.jit(raw)
-        self.single = CompiledFunction(raw)
-        self.batched = CompiledFunction(jax.vmap(raw))
+        self.single = CompiledFunction(raw, program_key(key, "single"))
+        self.batched = CompiledFunction(jax.vmap(raw), program_key(key, "batched"))
 
 
 class AbstractPureSolver(abc.ABC):
@@ -152,4 +154,5 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
-        return cached(problem, ("pure", self), lambda: _Programs(self.pure_solve(problem)))
+        key = program_key(getattr(problem, "key", None), programs.describe(self))
+        return cached(problem, ("pure", self), lambda: _Programs(self.pure_solve(problem), key))

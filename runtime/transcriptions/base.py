@@ -12,11 +12,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import programs
 from ..data import ProblemData
 from ..method import AbstractMethod
 from ..nlp import NLP
 from ..solution import Solution
 from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
+from ..solvers.base import CompiledFunction, program_key
 from ..system import System
 from .error import local_errors
 
@@ -181,20 +183,27 @@ def path_violation(system: System, times, states, controls, params) -> float:
 
 @functools.lru_cache(maxsize=256)
 def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
-    """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object."""
-    return transcription.transcribe(system)
+    """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object.
+
+    Its ``key`` (:mod:`myriad.runtime.programs`) is the system's source and the transcription's configuration when
+    both are plain; otherwise None, and its programs are traced afresh in every process."""
+    nlp = transcription.transcribe(system)
+    key = program_key(programs.system_key(system), programs.describe(transcription))
+    return nlp if key is None or nlp.key is not None else dataclasses.replace(nlp, key=key)
 
 
 @functools.lru_cache(maxsize=256)
-def _unravel(nlp: NLP):
-    # Jitted once per NLP: an eager unravel would re-trace its scan (a fresh closure) on every solve.
-    return jax.jit(nlp.unravel)
+def _unravel(nlp: NLP) -> CompiledFunction:
+    # Compiled once per NLP and shapes: an eager unravel would re-trace its scan (a fresh closure) on every solve.
+    return CompiledFunction(nlp.unravel, program_key(nlp.key, "unravel"))
 
 
 def _solution(system: System, transcription: AbstractTranscription, solver, nlp: NLP, res, data) -> Solution:
     """A Solution from an NLP result: the trajectory on the transcription's grid, the discretised defect and the
     relative local error of the dynamics on that grid."""
-    times, states, controls = (np.asarray(a) for a in _unravel(nlp)(jnp.asarray(res.z), data))
+    unravel, args = _unravel(nlp), (jnp.asarray(res.z, dtype=jnp.float64), data)
+    unravel.compile(*args)
+    times, states, controls = (np.asarray(a) for a in unravel(*args))
     defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
     # Simpson's rule sees a midpoint control: the grid interleaves nodes and midpoints (see error.py).
     error = local_errors(system, times, states, controls, data.params, midpoints=transcription.quadrature == "simpson")

@@ -41,6 +41,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .. import programs
+from ..solvers.base import CompiledFunction, program_key
 from ..system import System
 from ._common import state_scale
 
@@ -87,6 +89,11 @@ def _reference_end(f, x, t, h, u0, um, u1, substeps):
 
 
 @functools.lru_cache(maxsize=256)
+def _stored_errors_fn(system: System, substeps: int, key: str) -> CompiledFunction:
+    return CompiledFunction(_errors_fn(system, substeps), key)
+
+
+@functools.lru_cache(maxsize=256)
 def _errors_fn(system: System, substeps: int):
     # One jitted program per system (and per grid shape, by jit's own cache); params are traced, so new parameters
     # reuse it.
@@ -128,7 +135,14 @@ def local_errors(system: System, times, states, controls, params, *, midpoints: 
     else:
         t, x, u = times, states, controls
         um = 0.5 * (u[:-1] + u[1:])
-    per_interval = np.asarray(_errors_fn(system, int(substeps))(
-        params, t[:-1], np.diff(t), x[:-1], x[1:], u[:-1], um, u[1:]))
+    args = (params, t[:-1], np.diff(t), x[:-1], x[1:], u[:-1], um, u[1:])
+    key = program_key(programs.system_key(system), f"local_errors:{int(substeps)}")
+    if programs.program_folder() is None or key is None:
+        per_interval = np.asarray(_errors_fn(system, int(substeps))(*args))
+    else:  # concrete inputs (host arrays) with the program store on: see myriad.runtime.programs
+        stored = _stored_errors_fn(system, int(substeps), key)
+        args = jax.tree.map(lambda a: jax.device_put(np.asarray(a, dtype=np.float64)), args)
+        stored.compile(*args)
+        per_interval = np.asarray(stored(*args))
     value = float("nan") if np.any(np.isnan(per_interval)) else float(per_interval.max(initial=0.0))
     return ErrorEstimate(value=value, intervals=per_interval, interval_times=t)

@@ -1,0 +1,160 @@
+"""Traced programs kept on disk (``jax.export``), so that a second process skips Python tracing as well as XLA.
+
+JAX's persistent compilation cache (:mod:`.cache`) saves XLA's work, but its key is the lowered program, so every
+process still traces and lowers each program first. For a table of 18 solves that tracing was most of a second run
+(the ``myriad bench --published-only`` profile: ~80 % of 23 s in ``trace_to_jaxpr`` and lowering, 1.6 s reading
+executables back). This store keeps each traced program as a serialised :class:`jax.export.Exported`; a later process
+deserialises it and compiles ``jax.jit(exported.call)`` (an executable the compilation cache then has too), the
+first process compiles the same thing, so both ask the compilation cache for the same key.
+
+Only programs with a *key* are stored: a string that, with the argument shapes, says everything the traced closure
+depends on (a spec-generated system's module source, a transcription's configuration, a solver's options; see
+:func:`describe` and :func:`system_key`). Anything else, such as a learned model with its weights in the closure, has
+no key and is traced as before. The file name also hashes this package's own source, the versions of JAX and the
+libraries traced through, the float width and the device: a change to any of them is a different program. A program
+that cannot be exported (a host callback, an unregistered pytree) is lowered the usual way and not stored.
+
+The store lives in ``<compilation cache folder>/programs`` and is turned on and off with the compilation cache
+(:func:`myriad.runtime.cache.enable_compilation_cache`); files are written atomically and safe to delete.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import logging
+import os
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Callable
+
+import jax
+import numpy as np
+
+from .atomic import atomic_write_bytes
+
+__all__ = ["describe", "lower", "program_folder", "set_program_folder", "system_key"]
+
+log = logging.getLogger(__name__)
+_FOLDER: Path | None = None
+# Libraries whose code is traced into the programs (their versions are part of every file name).
+_TRACED_LIBRARIES = ("jax", "jaxlib", "numpy", "diffrax", "equinox", "lineax", "optimistix")
+
+
+def set_program_folder(folder: str | os.PathLike | None) -> None:
+    """Store programs in ``folder`` (created on first write); None turns the store off."""
+    global _FOLDER
+    _FOLDER = None if folder is None else Path(folder)
+
+
+def program_folder() -> Path | None:
+    return _FOLDER
+
+
+@functools.lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """This package's Python source, the traced libraries' versions, the float width and the device kind."""
+    import myriad.compiler
+    import myriad.runtime
+
+    digest = hashlib.sha256()
+    for package in (myriad.runtime, myriad.compiler):
+        root = Path(package.__file__).parent
+        for path in sorted(root.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    for name in _TRACED_LIBRARIES:
+        try:
+            digest.update(f"{name}={metadata.version(name)}".encode())
+        except metadata.PackageNotFoundError:
+            digest.update(f"{name}=absent".encode())
+    device = jax.devices()[0]
+    digest.update(f"x64={jax.config.jax_enable_x64};{device.platform};{device.device_kind}".encode())
+    return digest.hexdigest()
+
+
+def describe(obj: Any) -> str | None:
+    """A canonical text of a configuration object, or None when it is not made only of plain values.
+
+    Plain: None, bools, ints, floats, strings, tuples and lists of plain values, and dataclasses of this package whose
+    fields are plain (transcriptions, integrators, solver options). A float is written with ``repr`` (round-trips),
+    an array or a callable is not plain: an object holding one cannot be keyed by its text.
+    """
+    if obj is None or isinstance(obj, (bool, int, str)):
+        return repr(obj)
+    if isinstance(obj, float):
+        return repr(float(obj))
+    if isinstance(obj, (tuple, list)):
+        parts = [describe(v) for v in obj]
+        return None if None in parts else f"[{','.join(parts)}]"
+    cls = type(obj)
+    if dataclasses.is_dataclass(obj) and cls.__module__.startswith("myriad."):
+        parts = []
+        for field in dataclasses.fields(obj):
+            text = describe(getattr(obj, field.name))
+            if text is None:
+                return None
+            parts.append(f"{field.name}={text}")
+        return f"{cls.__module__}.{cls.__qualname__}({','.join(parts)})"
+    return None
+
+
+def system_key(system: Any) -> str | None:
+    """The source of a spec-generated system's module (shipped or loaded from a spec file), hashed; None for any other
+    system (a learned model, a hand-written subclass), whose behaviour its source file need not pin down."""
+    module = type(system).__module__
+    if not (module.startswith("myriad.runtime.systems.") or module.startswith("myriad_user_systems.")):
+        return None
+    import sys
+
+    path = getattr(sys.modules.get(module), "__file__", None)
+    if path is None:
+        return None
+    return f"system:{hashlib.sha256(Path(path).read_bytes()).hexdigest()}"
+
+
+def _signature_text(args: tuple) -> str:
+    leaves, treedef = jax.tree.flatten(args)
+    shapes = ";".join(f"{np.shape(x)}:{x.dtype if hasattr(x, 'dtype') else np.result_type(x)}" for x in leaves)
+    return f"{treedef}|{shapes}"
+
+
+@functools.lru_cache(maxsize=1)
+def _register_pytrees() -> None:
+    """The NamedTuples that cross a stored program's boundary, under stable names (export needs them registered)."""
+    from jax import export
+
+    from .data import ProblemData
+    from .simulate import Simulation
+    from .solvers.interior_point.loop import InteriorPointSolution, WarmStart
+
+    for cls in (ProblemData, Simulation, InteriorPointSolution, WarmStart):
+        export.register_namedtuple_serialization(cls, serialized_name=f"myriad.{cls.__qualname__}")
+
+
+def lower(jitted: Callable, key: str | None, args: tuple) -> Any:
+    """``jitted.lower(*args)``, through the store when it is on and ``key`` is given (see the module docstring)."""
+    if key is None or _FOLDER is None:
+        return jitted.lower(*args)
+    from jax import export
+
+    try:
+        _register_pytrees()
+        name = hashlib.sha256(f"{key}|{_signature_text(args)}|{_code_fingerprint()}".encode()).hexdigest()
+        path = _FOLDER / f"{name[:40]}.jaxexport"
+        exported = None
+        if path.exists():
+            try:
+                exported = export.deserialize(bytearray(path.read_bytes()))
+            except Exception as exc:  # a truncated or foreign file: export it again below
+                log.debug("program store: %s unreadable (%s); exporting again", path, exc)
+        if exported is None:
+            exported = export.export(jitted)(*args)
+            blob = exported.serialize()
+            _FOLDER.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(path, blob)
+        return jax.jit(exported.call).lower(*args)
+    except Exception as exc:  # not exportable (e.g. a host callback): the usual lowering, nothing stored
+        log.debug("program store: %s not stored (%s)", key, exc)
+        return jitted.lower(*args)
