@@ -4,6 +4,9 @@ A second process that compiles the same program (same NLP, shapes, JAX version a
 the folder instead of running XLA again. The folder is ``$MYRIAD_JAX_CACHE`` if set, else ``~/.cache/myriad/jax``;
 it is safe to delete at any time (the next compilation refills it). ``MYRIAD_JAX_CACHE=off`` (or ``none``, ``0``, an
 empty value) turns it off, as ``myriad --no-cache`` does.
+
+Its subfolder ``programs/`` holds the traced programs themselves (:mod:`myriad.runtime.programs`), so that a second
+process skips Python tracing too, which was most of a second ``myriad bench --published-only`` (23 s -> 8-10 s).
 """
 
 from __future__ import annotations
