@@ -28,7 +28,13 @@ def _methods() -> dict:
     return {**TRANSCRIPTIONS, **INDIRECT}
 
 
-def _parser():
+# Commands whose parsers live in their own packages; importing one imports its package (equinox, optax, optimistix,
+# gymnasium: ~0.7 s), so `myriad solve` and `myriad bench` build only their own parser (and `--help` lists them all).
+_PACKAGE_COMMANDS = ("sysid", "sweep", "e2e", "rl-reference")
+
+
+def _parser(command: str | None = None):
+    """The argument parser; with ``command`` (``solve`` or ``bench``) the package commands' parsers are left out."""
     # The choices come from the registries: a new transcription, solver or integrator appears here by itself.
     from .integrators import INTEGRATORS
     from .solvers import SOLVERS
@@ -63,18 +69,14 @@ def _parser():
                    help="with --tolerance: the most refined grids after the first solve (default 10)")
     s.add_argument("--max-intervals", type=int, default=None, metavar="N",
                    help="with --tolerance: the largest grid refinement may build (default 2000)")
-    from .sysid.cli import add_parser as add_sysid
+    if command not in ("solve", "bench"):
+        from .e2e.cli import add_parser as add_e2e
+        from .rl.cli import add_parser as add_rl_reference
+        from .sweep.cli import add_parser as add_sweep
+        from .sysid.cli import add_parser as add_sysid
 
-    add_sysid(sub)
-    from .sweep.cli import add_parser as add_sweep
-
-    add_sweep(sub)
-    from .e2e.cli import add_parser as add_e2e
-
-    add_e2e(sub)
-    from .rl.cli import add_parser as add_rl_reference
-
-    add_rl_reference(sub)
+        for add in (add_sysid, add_sweep, add_e2e, add_rl_reference):
+            add(sub)
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
     b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
     b.add_argument("--json", metavar="FILE")
@@ -84,7 +86,8 @@ def _parser():
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
     for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
-        _add_cache_options(sub.choices[name])
+        if name in sub.choices:
+            _add_cache_options(sub.choices[name])
     return p
 
 
@@ -367,7 +370,9 @@ def _cmd_bench(args) -> int:
 
 
 def main(argv=None) -> int:
-    parser = _parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = _parser(command if command in ("solve", "bench") else None)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help(sys.stderr)
