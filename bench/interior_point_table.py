@@ -4,8 +4,13 @@ For each system: both solvers' cost, their relative difference, the largest diff
 (the defects ``x_N - x_final``), iterations, compile seconds and the warm solve time (the minimum over ``--repeat``
 solves of the same NLP and data after the first; for InteriorPoint one dispatch of the compiled ``while_loop``).
 
-Usage: python bench/interior_point_table.py [--systems NAME ...] [--transcription published|multiple_shooting|
-       trapezoidal|hermite_simpson] [--repeat R]
+The transcriptions: the published setting, ``myriad bench``'s three alternatives, or the three of the cross-check's
+part (a) (``cross_check_*``: 200 control intervals, the settings of ``bench/cross_check.py``; ``--systems cross_check``
+takes its 13 Lenhart systems and Van der Pol).
+
+Usage: python bench/interior_point_table.py [--systems NAME ... | cross_check] [--transcription published|
+       multiple_shooting|trapezoidal|hermite_simpson|cross_check_multiple_shooting|cross_check_trapezoidal|
+       cross_check_hermite_simpson] [--repeat R]
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
+from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
@@ -30,8 +37,12 @@ from myriad.runtime.bench import ALTERNATIVES, PUBLISHED_SETTING  # noqa: E402
 from myriad.runtime.solvers import InteriorPoint, Ipopt  # noqa: E402
 from myriad.runtime.systems import NAMES  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from cross_check import METHODS_A, TRANSCRIPTION_SYSTEMS  # noqa: E402
+
 SETTINGS = {"published": PUBLISHED_SETTING, "multiple_shooting": ALTERNATIVES[0], "trapezoidal": ALTERNATIVES[1],
-            "hermite_simpson": ALTERNATIVES[2]}
+            "hermite_simpson": ALTERNATIVES[2],
+            **{f"cross_check_{k}": v for k, v in METHODS_A.items() if k != "fbsm"}}
 
 
 def warm_seconds(system, transcription, solver, repeat: int) -> float:
@@ -44,6 +55,8 @@ def main() -> None:
     parser.add_argument("--transcription", choices=list(SETTINGS), default="published")
     parser.add_argument("--repeat", type=int, default=3)
     args = parser.parse_args()
+    if args.systems == ["cross_check"]:
+        args.systems = list(TRANSCRIPTION_SYSTEMS)
     transcription = SETTINGS[args.transcription]
     model = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
                  "unknown CPU") if os.path.exists("/proc/cpuinfo") else "unknown CPU"

@@ -26,6 +26,22 @@ against IPOPT's 53 (51 with the 10^8 retry).
 
 Cost: one ``n_x x n_x`` and one ``m x m`` Cholesky per attempt, dense. Fine for single shooting (``n_x`` about 100-200);
 collocation's ``n_x`` of 500-1000 costs ``O(n_x^3)`` per iteration and the block-banded structure is not exploited.
+
+**Many rows (``2 m >= n_x``: collocation, multiple shooting): the null-space method.** There the certificate above
+failed where the inertia was right: on HIV Treatment's Trapezoidal(50) (``n_x = 201``, ``m = 150``, ``Sigma`` up to
+1e7) ``H_rho`` had no Cholesky factor even at ``10^8 rho`` while the reduced Hessian ``Z^T H_s Z`` was positive
+definite (smallest eigenvalue 0.8-1.3), so ``delta_w`` grew to 1e2-1e4 where 0-1 sufficed, and the solve crawled to
+the iteration limit. With a QR factorisation ``A^T = [Q_1 Z] [R; 0]`` (``A`` of full row rank), ``K`` has inertia
+``(n_x, m, 0)`` exactly when ``Z^T H_s Z`` is positive definite, and the step is
+
+.. math::
+    R^\top p = r_2,\quad Z^\top H_s Z\, q = Z^\top (r_1 - H_s Q_1 p),\quad d_x = Q_1 p + Z q,\quad
+    R\, d_\lambda = Q_1^\top (r_1 - H_s d_x).
+
+``Z^T (H + Sigma) Z`` is formed once per iteration and each attempt adds ``delta_w I`` to it (``Z`` is orthonormal), so
+an attempt is one ``(n_x - m)``-sized Cholesky. An ``A`` with a (numerically) dependent row falls back to the
+certificate above, whose ``delta_c`` handles it. For few rows the reduced Hessian costs more than ``H_rho`` (about
+``n_x^3`` against ``n_x^3 / 3``), so single shooting keeps the certificate.
 """
 
 from __future__ import annotations
@@ -34,7 +50,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.linalg import cho_solve
+from jax.scipy.linalg import cho_solve, solve_triangular
 
 __all__ = ["Factors", "factorize_with_inertia", "solve"]
 
@@ -45,10 +61,15 @@ GROW_FIRST, GROW, SHRINK = 100.0, 8.0, 1.0 / 3.0
 DELTA_C_BAR, DELTA_C_EXPONENT = 1e-8, 0.25
 RHO_RETRY, RHO_RETRIES = 1e4, 2  # H_rho is retried at rho0 * 1e4 and rho0 * 1e8
 MAX_ATTEMPTS = 60
+# A is treated as rank deficient (null-space method off) when |R_ii| < RANK_TOL max(1, max |R_jj|).
+RANK_TOL = 1e-10
 
 
 class Factors(NamedTuple):
-    """The factorised system: enough to solve with any right-hand side (the step and the second-order correction)."""
+    """The factorised system: enough to solve with any right-hand side (the step and the second-order correction).
+
+    One of two methods holds (``nullspace``); the other's arrays are placeholders. Problems with few rows carry
+    empty null-space arrays (the method is chosen by shapes, see :func:`uses_nullspace`)."""
 
     h_s: jax.Array  # H_s (for the refinement residual)
     chol_h: jax.Array  # lower Cholesky factor of H_rho
@@ -56,6 +77,23 @@ class Factors(NamedTuple):
     chol_s: jax.Array  # lower Cholesky factor of S
     rho: jax.Array
     delta_c: jax.Array
+    nullspace: jax.Array  # solved by the null-space method
+    q1: jax.Array  # (n_x, m) range of A^T
+    z: jax.Array  # (n_x, n_x - m) null space of A
+    r: jax.Array  # (m, m) upper triangular, A^T = Q_1 R
+    chol_red: jax.Array  # lower Cholesky factor of Z^T H_s Z
+
+
+def uses_nullspace(n_x: int, m: int) -> bool:
+    """The null-space method for problems with many rows (see the module docstring)."""
+    return m > 0 and 2 * m >= n_x
+
+
+def _placeholders(n_x: int, m: int, dtype) -> tuple:
+    k = n_x - m if uses_nullspace(n_x, m) else 0
+    mm = m if uses_nullspace(n_x, m) else 0
+    return (jnp.zeros((n_x, mm), dtype), jnp.zeros((n_x, k), dtype), jnp.zeros((mm, mm), dtype),
+            jnp.zeros((k, k), dtype))
 
 
 def _cholesky(matrix) -> tuple[jax.Array, jax.Array]:
@@ -71,8 +109,8 @@ def _cholesky(matrix) -> tuple[jax.Array, jax.Array]:
 
 
 def _factorize(h_s, jac, rho, delta_c) -> tuple[Factors, jax.Array, jax.Array]:
-    """Factors and (H_rho positive definite, S positive definite)."""
-    m = jac.shape[0]
+    """Factors (the certificate's) and (H_rho positive definite, S positive definite)."""
+    n_x, m = h_s.shape[0], jac.shape[0]
     chol_h, ok_h = _cholesky(h_s + rho * (jac.T @ jac) if m else h_s)
     if m:
         # m right-hand sides: few for shooting; collocation's many rows make this the dearest part (see above).
@@ -80,10 +118,25 @@ def _factorize(h_s, jac, rho, delta_c) -> tuple[Factors, jax.Array, jax.Array]:
         chol_s, ok_s = _cholesky((1.0 - rho * delta_c) * (jac @ hinv_at) + delta_c * jnp.eye(m, dtype=h_s.dtype))
     else:
         hinv_at, chol_s, ok_s = jnp.zeros((h_s.shape[0], 0), h_s.dtype), jnp.zeros((0, 0), h_s.dtype), jnp.array(True)
-    return Factors(h_s, chol_h, hinv_at, chol_s, rho, delta_c), ok_h, ok_s
+    return Factors(h_s, chol_h, hinv_at, chol_s, rho, delta_c, jnp.array(False),
+                   *_placeholders(n_x, m, h_s.dtype)), ok_h, ok_s
+
+
+def _solve_nullspace(f: Factors, r1, r2):
+    p = solve_triangular(f.r, r2, trans="T", lower=False)
+    y = f.q1 @ p
+    q = cho_solve((f.chol_red, True), f.z.T @ (r1 - f.h_s @ y))
+    dx = y + f.z @ q
+    return dx, solve_triangular(f.r, f.q1.T @ (r1 - f.h_s @ dx), lower=False)
 
 
 def _solve_once(f: Factors, jac, r1, r2):
+    if uses_nullspace(f.h_s.shape[0], jac.shape[0]):
+        return jax.lax.cond(f.nullspace, lambda: _solve_nullspace(f, r1, r2), lambda: _solve_certified(f, jac, r1, r2))
+    return _solve_certified(f, jac, r1, r2)
+
+
+def _solve_certified(f: Factors, jac, r1, r2):
     m = jac.shape[0]
     if not m:
         return cho_solve((f.chol_h, True), r1), r2
@@ -114,29 +167,67 @@ class _Attempt(NamedTuple):
 def factorize_with_inertia(
     hess: jax.Array, sigma: jax.Array, jac: jax.Array, mu: jax.Array, delta_w_last: jax.Array
 ) -> tuple[Factors, jax.Array, jax.Array]:
-    """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC) on the certificate of the module docstring.
+    """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC), by the null-space method for many rows and by
+    the certificate of the module docstring otherwise.
 
-    Tries ``delta_w = 0`` first (at ``rho``, ``10^4 rho`` and ``10^8 rho``), then ``delta_w`` from ``1e-4`` (or a
-    third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a rank-deficient
-    ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same ``delta_w``.
+    Tries ``delta_w = 0`` first (the certificate: at ``rho``, ``10^4 rho`` and ``10^8 rho``), then ``delta_w`` from
+    ``1e-4`` (or a third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a
+    rank-deficient ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same ``delta_w``.
 
     Returns:
         ``(factors, delta_w, ok)``; ``ok`` is False when no ``delta_w`` up to the maximum gave the right inertia.
     """
+    base = hess + jnp.diag(sigma)
+    n_x, m = hess.shape[0], jac.shape[0]
+    if not uses_nullspace(n_x, m):
+        return _certified(base, hess, jac, mu, delta_w_last)
+    q, r_full = jnp.linalg.qr(jac.T, mode="complete")
+    diag = jnp.abs(jnp.diagonal(r_full))
+    full_rank = jnp.all(jnp.isfinite(r_full)) & (jnp.min(diag) > RANK_TOL * jnp.maximum(1.0, jnp.max(diag)))
+    return jax.lax.cond(full_rank, lambda: _nullspace(base, q, r_full[:m], m, delta_w_last),
+                        lambda: _certified(base, hess, jac, mu, delta_w_last))
+
+
+def _schedule(k, delta_w, delta_w_last, first_grown):
+    """delta_w for attempt k, after delta_w at attempt k - 1 (attempts before ``first_grown`` keep 0)."""
+    start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
+    grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
+    return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
+
+
+def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
+    """The attempts on ``Z^T H_s Z = Z^T (H + Sigma) Z + delta_w I``: one Cholesky of size ``n_x - m`` each."""
+    n_x, dtype = base.shape[0], base.dtype
+    q1, z = q[:, :m], q[:, m:]
+    reduced = z.T @ base @ z
+    eye_k = jnp.eye(n_x - m, dtype=dtype)
+
+    def attempt(a):
+        k, delta_w, _, _ = a
+        chol, ok = _cholesky(reduced + delta_w * eye_k)
+        return (jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, _schedule(k + 1, delta_w, delta_w_last, 1)), ok, chol)
+
+    def keep_trying(a):
+        k, delta_w, done, _ = a
+        return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
+
+    zero = jnp.zeros((), dtype)
+    _, delta_w, done, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye_k))
+    eye = jnp.eye(n_x, dtype=dtype)
+    factors = Factors(base + delta_w * eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero,
+                      jnp.array(True), q1, z, r, chol)
+    return factors, delta_w, done
+
+
+def _certified(base, hess, jac, mu, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
+    """The attempts on the Cholesky certificate of the module docstring."""
     n_x, m = hess.shape[0], jac.shape[0]
     dtype = hess.dtype
-    base = hess + jnp.diag(sigma)
     # rho: the Hessian's magnitude over the largest squared row norm of A, so that rho A^T A can dominate it.
     row_sq = jnp.max(jnp.sum(jac * jac, axis=1), initial=0.0) if m else jnp.zeros((), dtype)
     rho0 = (1.0 + jnp.max(jnp.abs(hess), initial=0.0)) / jnp.maximum(row_sq, 1e-12) if m else jnp.zeros((), dtype)
     # Attempts 0..RHO_RETRIES keep delta_w = 0 (rho, then larger); no retries for rho when there is no A.
     first_grown = 1 + RHO_RETRIES if m else 1
-
-    def schedule(k, delta_w):
-        """delta_w for attempt k, after delta_w at attempt k - 1."""
-        start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
-        grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
-        return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
 
     def attempt(a: _Attempt) -> _Attempt:
         rho = rho0 * RHO_RETRY ** jnp.minimum(a.k, RHO_RETRIES).astype(dtype)
@@ -148,7 +239,7 @@ def factorize_with_inertia(
         done = ok_h & ok_s
         advance = ~done & ~rank_deficient
         k = jnp.where(advance, a.k + 1, a.k)
-        delta_w = jnp.where(advance, schedule(a.k + 1, a.delta_w), a.delta_w)
+        delta_w = jnp.where(advance, _schedule(a.k + 1, a.delta_w, delta_w_last, first_grown), a.delta_w)
         return _Attempt(k, delta_w, delta_c, rho, done, factors)
 
     def keep_trying(a: _Attempt):
@@ -156,7 +247,8 @@ def factorize_with_inertia(
 
     zero = jnp.zeros((), dtype)
     eye = jnp.eye(n_x, dtype=dtype)
-    init_factors = Factors(eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero)
+    init_factors = Factors(eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero, jnp.array(False),
+                           *_placeholders(n_x, m, dtype))
     first = _Attempt(jnp.array(0), zero, zero, zero, jnp.array(False), init_factors)
     final = jax.lax.while_loop(keep_trying, attempt, first)
     return final.factors, final.delta_w, final.done
