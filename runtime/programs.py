@@ -103,7 +103,12 @@ def describe(obj: Any) -> str | None:
 def system_key(system: Any) -> str | None:
     """The source of a spec-generated system's module (shipped or loaded from a spec file), hashed; None for any other
     system (a learned model, a hand-written subclass), whose behaviour its source file need not pin down."""
-    module = type(system).__module__
+    return _module_key(type(system).__module__)
+
+
+@functools.lru_cache(maxsize=None)
+def _module_key(module: str) -> str | None:
+    # Once per module and process: the code in memory is what was imported, whatever the file says later.
     if not (module.startswith("myriad.runtime.systems.") or module.startswith("myriad_user_systems.")):
         return None
     import sys
