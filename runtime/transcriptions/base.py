@@ -20,7 +20,7 @@ from ..solution import Solution
 from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
 from ..solvers.base import CompiledFunction, program_key
 from ..system import System
-from .error import local_errors
+from .error import REFERENCE_SUBSTEPS, estimate, interval_errors
 
 __all__ = ["AbstractTranscription", "TrajectoryFn", "path_violation", "sample_final_time", "transcribe"]
 
@@ -193,20 +193,29 @@ def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
 
 
 @functools.lru_cache(maxsize=256)
-def _unravel(nlp: NLP) -> CompiledFunction:
-    # Compiled once per NLP and shapes: an eager unravel would re-trace its scan (a fresh closure) on every solve.
-    return CompiledFunction(nlp.unravel, program_key(nlp.key, "unravel"))
+def _trajectory(nlp: NLP, system: System, midpoints: bool) -> CompiledFunction:
+    """``(z, data) ->`` the trajectory on the grid and its per-interval local errors, one program per NLP and shapes
+    (an eager unravel would re-trace its scan on every solve; one program rather than two halves what a later process
+    reads back from the program store)."""
+
+    def trajectory(z, data):
+        times, states, controls = nlp.unravel(z, data)
+        return times, states, controls, interval_errors(system, times, states, controls, data.params,
+                                                        midpoints=midpoints)
+
+    return CompiledFunction(trajectory, program_key(nlp.key, f"trajectory:{midpoints}:{REFERENCE_SUBSTEPS}"))
 
 
 def _solution(system: System, transcription: AbstractTranscription, solver, nlp: NLP, res, data) -> Solution:
     """A Solution from an NLP result: the trajectory on the transcription's grid, the discretised defect and the
     relative local error of the dynamics on that grid."""
-    unravel, args = _unravel(nlp), (jnp.asarray(res.z, dtype=jnp.float64), data)
-    unravel.compile(*args)
-    times, states, controls = (np.asarray(a) for a in unravel(*args))
-    defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
     # Simpson's rule sees a midpoint control: the grid interleaves nodes and midpoints (see error.py).
-    error = local_errors(system, times, states, controls, data.params, midpoints=transcription.quadrature == "simpson")
+    midpoints = transcription.quadrature == "simpson"
+    program, args = _trajectory(nlp, system, midpoints), (jnp.asarray(res.z, dtype=jnp.float64), data)
+    program.compile(*args)
+    times, states, controls, per_interval = (np.asarray(a) for a in program(*args))
+    defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
+    error = estimate(per_interval, times[::2] if midpoints else times)
     return Solution(
         system=system.name, transcription=transcription.label, solver=solver.label,
         integrator=transcription.quadrature, times=times, states=states, controls=controls,

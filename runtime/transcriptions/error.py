@@ -46,7 +46,7 @@ from ..solvers.base import CompiledFunction, program_key
 from ..system import System
 from ._common import state_scale
 
-__all__ = ["ErrorEstimate", "REFERENCE_SUBSTEPS", "local_errors"]
+__all__ = ["ErrorEstimate", "REFERENCE_SUBSTEPS", "estimate", "interval_errors", "local_errors"]
 
 REFERENCE_SUBSTEPS = 16
 
@@ -97,9 +97,14 @@ def _stored_errors_fn(system: System, substeps: int, key: str) -> CompiledFuncti
 def _errors_fn(system: System, substeps: int):
     # One jitted program per system (and per grid shape, by jit's own cache); params are traced, so new parameters
     # reuse it.
-    scale = jnp.asarray(state_scale(system))
+    return jax.jit(_errors_body(system, substeps))
 
-    @jax.jit
+
+def _errors_body(system: System, substeps: int):
+    # The scale stays a NumPy constant: a device array closed over by a function traced inside another program becomes
+    # a hidden argument of the compiled executable, which then refuses the caller's arguments.
+    scale = np.asarray(state_scale(system), dtype=np.float64)
+
     def errors(params, t0, h, x0, x1, u0, um, u1):
         f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
         ref = jax.vmap(lambda *a: _reference_end(f, *a, substeps))(x0, t0, h, u0, um, u1)
@@ -135,7 +140,7 @@ def local_errors(system: System, times, states, controls, params, *, midpoints: 
     else:
         t, x, u = times, states, controls
         um = 0.5 * (u[:-1] + u[1:])
-    args = (params, t[:-1], np.diff(t), x[:-1], x[1:], u[:-1], um, u[1:])
+    args = (params, t[:-1], t[1:] - t[:-1], x[:-1], x[1:], u[:-1], um, u[1:])
     key = program_key(programs.system_key(system), f"local_errors:{int(substeps)}")
     if programs.program_folder() is None or key is None:
         per_interval = np.asarray(_errors_fn(system, int(substeps))(*args))
@@ -144,5 +149,25 @@ def local_errors(system: System, times, states, controls, params, *, midpoints: 
         args = jax.tree.map(lambda a: jax.device_put(np.asarray(a, dtype=np.float64)), args)
         stored.compile(*args)
         per_interval = np.asarray(stored(*args))
+    return estimate(per_interval, t)
+
+
+def interval_errors(system: System, times, states, controls, params, *, midpoints: bool = False,
+                    substeps: int = REFERENCE_SUBSTEPS):
+    """:func:`local_errors`' per-interval errors as a traceable function of the trajectory's arrays, to be part of a
+    larger program (a solution's trajectory and its errors are one program, see ``transcriptions.base``)."""
+    if midpoints:
+        if times.shape[0] % 2 != 1:
+            raise ValueError(f"a grid with midpoints has an odd number of points (2N + 1), got {times.shape[0]}")
+        t, x, u, um = times[::2], states[::2], controls[::2], controls[1::2]
+    else:
+        t, x, u = times, states, controls
+        um = 0.5 * (u[:-1] + u[1:])
+    return _errors_body(system, int(substeps))(params, t[:-1], t[1:] - t[:-1], x[:-1], x[1:], u[:-1], um, u[1:])
+
+
+def estimate(per_interval, interval_times) -> ErrorEstimate:
+    """The :class:`ErrorEstimate` of per-interval errors (NaN anywhere: NaN)."""
+    per_interval = np.asarray(per_interval, dtype=np.float64)
     value = float("nan") if np.any(np.isnan(per_interval)) else float(per_interval.max(initial=0.0))
-    return ErrorEstimate(value=value, intervals=per_interval, interval_times=t)
+    return ErrorEstimate(value=value, intervals=per_interval, interval_times=np.asarray(interval_times))
