@@ -28,9 +28,9 @@ def _methods() -> dict:
     return {**TRANSCRIPTIONS, **INDIRECT}
 
 
-# Commands whose parsers live in their own packages; importing one imports its package (equinox, optax, optimistix,
-# gymnasium: ~0.7 s), so `myriad solve` and `myriad bench` build only their own parser (and `--help` lists them all).
-_PACKAGE_COMMANDS = ("sysid", "sweep", "e2e", "rl-reference")
+# Commands that build only their own parser: the others' parsers live in their packages, whose imports (equinox,
+# optax, optimistix, gymnasium) cost ~0.7 s; `myriad --help` and the other commands build them all.
+_OWN_PARSER_ONLY = ("solve", "bench")
 
 
 def _parser(command: str | None = None):
@@ -69,7 +69,7 @@ def _parser(command: str | None = None):
                    help="with --tolerance: the most refined grids after the first solve (default 10)")
     s.add_argument("--max-intervals", type=int, default=None, metavar="N",
                    help="with --tolerance: the largest grid refinement may build (default 2000)")
-    if command not in ("solve", "bench"):
+    if command not in _OWN_PARSER_ONLY:
         from .e2e.cli import add_parser as add_e2e
         from .rl.cli import add_parser as add_rl_reference
         from .sweep.cli import add_parser as add_sweep
@@ -372,7 +372,7 @@ def _cmd_bench(args) -> int:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     command = next((a for a in argv if not a.startswith("-")), None)
-    parser = _parser(command if command in ("solve", "bench") else None)
+    parser = _parser(command if command in _OWN_PARSER_ONLY else None)
     args = parser.parse_args(argv)
     if args.command is None:
         parser.print_help(sys.stderr)

@@ -84,7 +84,9 @@ def simulate(
         return _simulate(system, integrator, controls, p, x0)
     # Concrete inputs with the program store on (myriad.runtime.programs): one program per system, integrator and
     # shapes, read back from disk by a later process instead of traced again.
-    args = jax.tree.map(lambda a: jax.device_put(np.asarray(a, dtype=controls.dtype)), args)
+    # Arrays keep their dtype; a Python number takes the controls' (what a weakly typed scalar becomes in _simulate).
+    args = jax.tree.map(lambda a: jax.device_put(np.asarray(a) if hasattr(a, "dtype")
+                                                 else np.asarray(a, dtype=controls.dtype)), args)
     stored.compile(*args)
     return stored(*args)
 
