@@ -154,5 +154,5 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
-        key = program_key(getattr(problem, "key", None), programs.describe(self))
-        return cached(problem, ("pure", self), lambda: _Programs(self.pure_solve(problem), key))
+        return cached(problem, ("pure", self), lambda: _Programs(
+            self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self))))

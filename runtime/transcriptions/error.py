@@ -41,8 +41,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import programs
-from ..solvers.base import CompiledFunction, program_key
 from ..system import System
 from ._common import state_scale
 
@@ -88,18 +86,6 @@ def _reference_end(f, x, t, h, u0, um, u1, substeps):
     return jax.lax.fori_loop(0, substeps, body, x)
 
 
-@functools.lru_cache(maxsize=256)
-def _stored_errors_fn(system: System, substeps: int, key: str) -> CompiledFunction:
-    return CompiledFunction(_errors_fn(system, substeps), key)
-
-
-@functools.lru_cache(maxsize=256)
-def _errors_fn(system: System, substeps: int):
-    # One jitted program per system (and per grid shape, by jit's own cache); params are traced, so new parameters
-    # reuse it.
-    return jax.jit(_errors_body(system, substeps))
-
-
 def _errors_body(system: System, substeps: int):
     # The scale stays a NumPy constant: a device array closed over by a function traced inside another program becomes
     # a hidden argument of the compiled executable, which then refuses the caller's arguments.
@@ -113,6 +99,12 @@ def _errors_body(system: System, substeps: int):
         return jnp.max(jnp.where(jnp.isfinite(ref), jnp.abs(x1 - ref) / scale, diverged), axis=1)
 
     return errors
+
+
+@functools.lru_cache(maxsize=256)
+def _local_errors_fn(system: System, midpoints: bool, substeps: int):
+    # One jitted program per system and grid shape (jit's own cache); params are traced, so new parameters reuse it.
+    return jax.jit(functools.partial(interval_errors, system, midpoints=midpoints, substeps=substeps))
 
 
 def local_errors(system: System, times, states, controls, params, *, midpoints: bool = False,
@@ -133,23 +125,8 @@ def local_errors(system: System, times, states, controls, params, *, midpoints: 
     times = np.asarray(times, dtype=np.float64)
     states = np.asarray(states, dtype=np.float64)
     controls = np.asarray(controls, dtype=np.float64)
-    if midpoints:
-        if times.shape[0] % 2 != 1:
-            raise ValueError(f"a grid with midpoints has an odd number of points (2N + 1), got {times.shape[0]}")
-        t, x, u, um = times[::2], states[::2], controls[::2], controls[1::2]
-    else:
-        t, x, u = times, states, controls
-        um = 0.5 * (u[:-1] + u[1:])
-    args = (params, t[:-1], t[1:] - t[:-1], x[:-1], x[1:], u[:-1], um, u[1:])
-    key = program_key(programs.system_key(system), f"local_errors:{int(substeps)}")
-    if programs.program_folder() is None or key is None:
-        per_interval = np.asarray(_errors_fn(system, int(substeps))(*args))
-    else:  # concrete inputs (host arrays) with the program store on: see myriad.runtime.programs
-        stored = _stored_errors_fn(system, int(substeps), key)
-        args = jax.tree.map(lambda a: jax.device_put(np.asarray(a, dtype=np.float64)), args)
-        stored.compile(*args)
-        per_interval = np.asarray(stored(*args))
-    return estimate(per_interval, t)
+    per_interval = _local_errors_fn(system, bool(midpoints), int(substeps))(times, states, controls, params)
+    return estimate(per_interval, times[::2] if midpoints else times)
 
 
 def interval_errors(system: System, times, states, controls, params, *, midpoints: bool = False,
