@@ -43,6 +43,10 @@ class NLP:
             transcription's F and c come from the same rollout; fusing them halves the integration work of every
             evaluation and of every derivative program built on both (the Lagrangian's Hessian). Must agree with
             ``objective`` and ``constraints``; :meth:`evaluate` falls back to calling them separately.
+        lagrangian_derivatives: optional (z, lam, data) -> (F, c, dF/dz, dc/dz, Hessian of F + lam^T c), the
+            second-order solvers' derivatives by the transcription's own structure (single shooting: stage by stage,
+            :mod:`~myriad.runtime.transcriptions.staged`). Must agree with differentiating ``evaluate``; solvers
+            fall back to that (forward over reverse) without it.
         key: what the functions depend on, as text (a spec-generated system's source and a transcription's
             configuration; :func:`~myriad.runtime.transcriptions.transcribe` sets it), so that their traced
             programs may be kept on disk for later processes (:mod:`myriad.runtime.programs`); None: never kept.
@@ -60,6 +64,7 @@ class NLP:
     z_scale: np.ndarray | None = None
     name: str = "nlp"
     objective_and_constraints: Callable[[Any, Data], tuple[Any, Any]] | None = None
+    lagrangian_derivatives: Callable[[Any, Any, Data], tuple[Any, Any, Any, Any, Any]] | None = None
     key: str | None = None
 
     def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:

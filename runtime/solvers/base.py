@@ -145,6 +145,8 @@ class ScaledProblem:
     # (w, data) -> (F, c): fused when the NLP provides objective_and_constraints (see NLP), else both calls.
     evaluate: Callable[[Any, Any], tuple[Any, Any]]
     key: str | None = None  # the NLP's key (myriad.runtime.programs): what its functions depend on, or None
+    # (w, lam, data) -> (F, c, dF/dw, dc/dw, Hessian of F + lam^T c in w): NLP.lagrangian_derivatives, or None.
+    derivatives: Callable[[Any, Any, Any], tuple] | None = None
 
     @classmethod
     def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
@@ -170,6 +172,8 @@ class ScaledProblem:
             c_upper=np.asarray(nlp.c_upper, dtype=np.float64),
             evaluate=lambda w, data: evaluate_z(w * s, data),
             key=nlp.key,
+            derivatives=None if nlp.lagrangian_derivatives is None else _scaled_derivatives(
+                nlp.lagrangian_derivatives, s),
         )
 
     @property
@@ -185,6 +189,15 @@ class ScaledProblem:
 
     def to_z(self, w: Any) -> np.ndarray:
         return np.asarray(w, dtype=np.float64) * self.scale
+
+
+def _scaled_derivatives(derivatives: Callable, s: Any) -> Callable:
+    """An NLP's ``lagrangian_derivatives`` in ``w = z / s`` (the chain rule of a diagonal change of variables)."""
+    def scaled(w, lam, data):
+        f, c, grad, jac, hess = derivatives(w * s, lam, data)
+        return f, c, grad * s, jac * s, hess * s[:, None] * s[None, :]
+
+    return scaled
 
 
 # ---- compiled functions and the per-NLP cache ------------------------------------------------------------------

@@ -23,6 +23,7 @@ from ._common import (
 )
 from .base import AbstractTranscription, sample_final_time
 from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .staged import staged_derivatives
 
 __all__ = ["SingleShooting"]
 
@@ -186,6 +187,31 @@ class SingleShooting(AbstractTranscription):
             us = controls_of(z)
             return jnp.asarray(ts), run(f, data.x0, us, ts), us
 
+        def lagrangian_derivatives(z, lam, data):
+            # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
+            f, L = fields(data.params)
+            n = system.n_states
+
+            def f_aug(y, u, t):  # as rollout_with_cost's, so values agree with objective_and_constraints
+                return jnp.concatenate([f(y[:n], u, t), jnp.reshape(L(y[:n], u, t), (1,))])
+
+            def step(k, y, v):
+                t_k, h_k = (k.astype(y.dtype) * h, h) if self.grid is None else (jnp.asarray(times)[k],
+                                                                                  jnp.asarray(h)[k])
+                return integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
+
+            def terminal(y):
+                xT = y[:n]
+                rows_ = jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
+                return y[n] + system.terminal_cost(xT, T_fixed, data.params), rows_
+
+            y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
+            return staged_derivatives(step, terminal, y0, z, stage_index, lam)
+
+        # Step k reads u_k and u_{k+1}; staged only where nothing else reaches the rows (no path rows, slacks or T).
+        stage_index = np.arange(N)[:, None] * m + np.arange(2 * m)[None, :]
+        staged = not free and nS == 0 and not system.n_path
+
         def initial_guess(data):
             del data
             return jnp.asarray(np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess]))
@@ -207,6 +233,7 @@ class SingleShooting(AbstractTranscription):
                  f"{'' if self.grid is None else ', graded'}{', free T' if free else ''}"
                  f"{f', soft bounds {rho:g}' if nS else ''})",
             objective_and_constraints=objective_and_constraints if n_rows else None,
+            lagrangian_derivatives=lagrangian_derivatives if staged else None,
         )
 
     def sample(self, system, states, controls, final_time=None):

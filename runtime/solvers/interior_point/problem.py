@@ -114,8 +114,12 @@ class Layout:
 
         One program: the JVPs of ``(F, c, grad_w(F + y^T c))`` along the ``n`` unit vectors (forward over reverse),
         whose unbatched primal is ``(F, c)`` and whose tangents are the gradient, the Jacobian and the Hessian. One
-        pass instead of a first-order program and a Hessian program: half the rollouts to compile.
+        pass instead of a first-order program and a Hessian program: half the rollouts to compile. A transcription
+        that knows its structure (``NLP.lagrangian_derivatives``: single shooting's stages) gives them itself.
         """
+        if self.problem.derivatives is not None:
+            f, c, grad_f, jac_c, hess = self.problem.derivatives(w, y, data)
+            return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
         evaluate = self.problem.evaluate
 
         def lagrangian(w_):
