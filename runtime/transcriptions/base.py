@@ -211,7 +211,7 @@ def _solution(system: System, transcription: AbstractTranscription, solver, nlp:
     relative local error of the dynamics on that grid."""
     # Simpson's rule sees a midpoint control: the grid interleaves nodes and midpoints (see error.py).
     midpoints = transcription.quadrature == "simpson"
-    program, args = _trajectory(nlp, system, midpoints), (jnp.asarray(res.z, dtype=jnp.float64), data)
+    program, args = _trajectory(nlp, system, midpoints), (np.asarray(res.z, dtype=np.float64), data)
     program.compile(*args)
     times, states, controls, per_interval = (np.asarray(a) for a in program(*args))
     defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]

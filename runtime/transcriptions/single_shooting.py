@@ -214,7 +214,9 @@ class SingleShooting(AbstractTranscription):
 
         def initial_guess(data):
             del data
-            return jnp.asarray(np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess]))
+            return guess.copy()  # a host constant: no device round trip on every solve
+
+        guess = np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess])
 
         p_lo, p_hi = path_bounds(system, N + 1)
         n_rows = fixed.size + bounded.size + p_lo.size

@@ -200,130 +200,139 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
                 converged, int(Status.CONVERGED), jnp.where(st.k >= max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
 
-            # Barrier update (monotone): as many decreases as the current point allows.
-            def decrease(mu):
-                return jnp.maximum(mu_min, jnp.minimum(KAPPA_MU * mu, mu**THETA_MU))
+            def finish(_):
+                # The iterate is final: no step, no line search (a cond, so a single solve skips their cost; under
+                # vmap both branches run, as every member's step did before).
+                return st._replace(status=stop.astype(st.status.dtype), kkt=kkt, objective=pt.objective,
+                                   violation=pt.violation, sigma=sigma, row_scale=row_scale)
 
-            mu = jax.lax.while_loop(
-                lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
-                decrease, st.mu)
+            def advance(_):
+                # Barrier update (monotone): as many decreases as the current point allows.
+                def decrease(mu):
+                    return jnp.maximum(mu_min, jnp.minimum(KAPPA_MU * mu, mu**THETA_MU))
 
-            gl, gu = gaps(x)
-            sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
-            grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
-            factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w)
-            r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
-            dx, dlam = solve(factors, pt.jac, r1, -pt.g)
-            dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
-            dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
-            tau = jnp.maximum(TAU_MIN, 1.0 - mu)
-            alpha_max = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx, tau),
-                                    _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx, tau))
-            alpha_z = jnp.minimum(_fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
-                                  _fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
+                mu = jax.lax.while_loop(
+                    lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
+                    decrease, st.mu)
 
-            # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
-            theta = jnp.sum(jnp.abs(pt.g))
-            phi0 = pt.f - mu * log_barrier(x)
-            slope = grad_phi @ dx
-            theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
-            theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
-            # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
-            reset = mu != st.mu
-            f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
-            f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
-            descent = slope < 0
-            switching_ok = lambda a: descent & (a * (-slope) ** S_PHI > DELTA * theta**S_THETA)  # noqa: E731
-            alpha_min = GAMMA_ALPHA * jnp.where(descent, jnp.minimum(
-                jnp.minimum(GAMMA_THETA, GAMMA_PHI * theta / jnp.where(descent, -slope, 1.0)),
-                jnp.where(theta <= theta_min,
-                          DELTA * theta**S_THETA / jnp.where(descent, -slope, 1.0) ** S_PHI, jnp.inf)), GAMMA_THETA)
-            tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
-            slack = 10.0 * EPS * jnp.abs(phi0)
-            # The fallback when the filter rejects every step down to alpha_min (where IPOPT would enter its
-            # restoration phase): backtracking on the exact-penalty merit phi + nu ||g||_1, with nu large enough
-            # for the step to be a descent direction (Nocedal & Wright, eq. 18.36); nu only grows.
-            curvature = dx @ (factors.h_s @ dx)
-            nu_req = (slope + 0.5 * jnp.maximum(curvature, 0.0)) / jnp.maximum(0.9 * theta, 1e-300)
-            nu = jnp.where((theta > 0) & (st.nu < nu_req), nu_req + 1.0, st.nu)
-            merit0 = phi0 + nu * theta
+                gl, gu = gaps(x)
+                sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
+                grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
+                factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w)
+                r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
+                dx, dlam = solve(factors, pt.jac, r1, -pt.g)
+                dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
+                dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
+                tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+                alpha_max = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx, tau),
+                                        _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx, tau))
+                alpha_z = jnp.minimum(_fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
+                                      _fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
 
-            def acceptable(alpha, theta_t, phi_t):
-                """(accepted, f-type: by Armijo under the switching condition, which leaves the filter as it is)."""
-                finite_t = jnp.isfinite(theta_t) & jnp.isfinite(phi_t)
-                f_type = (theta <= theta_min) & switching_ok(alpha)
-                armijo = phi_t <= phi0 + ETA * alpha * slope + slack
-                decrease = (theta_t <= (1.0 - GAMMA_THETA) * theta) | (phi_t <= phi0 - GAMMA_PHI * theta + slack)
-                outside = jnp.all((theta_t < f_theta) | (phi_t < f_phi))
-                ok = jnp.where(f_type, armijo, decrease) & outside & (theta_t <= theta_max) & finite_t
-                return ok, f_type
+                # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
+                theta = jnp.sum(jnp.abs(pt.g))
+                phi0 = pt.f - mu * log_barrier(x)
+                slope = grad_phi @ dx
+                theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
+                theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
+                # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
+                reset = mu != st.mu
+                f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
+                f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
+                descent = slope < 0
+                switching_ok = lambda a: descent & (a * (-slope) ** S_PHI > DELTA * theta**S_THETA)  # noqa: E731
+                alpha_min = GAMMA_ALPHA * jnp.where(descent, jnp.minimum(
+                    jnp.minimum(GAMMA_THETA, GAMMA_PHI * theta / jnp.where(descent, -slope, 1.0)),
+                    jnp.where(theta <= theta_min,
+                              DELTA * theta**S_THETA / jnp.where(descent, -slope, 1.0) ** S_PHI, jnp.inf)), GAMMA_THETA)
+                tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
+                slack = 10.0 * EPS * jnp.abs(phi0)
+                # The fallback when the filter rejects every step down to alpha_min (where IPOPT would enter its
+                # restoration phase): backtracking on the exact-penalty merit phi + nu ||g||_1, with nu large enough
+                # for the step to be a descent direction (Nocedal & Wright, eq. 18.36); nu only grows.
+                curvature = dx @ (factors.h_s @ dx)
+                nu_req = (slope + 0.5 * jnp.maximum(curvature, 0.0)) / jnp.maximum(0.9 * theta, 1e-300)
+                nu = jnp.where((theta > 0) & (st.nu < nu_req), nu_req + 1.0, st.nu)
+                merit0 = phi0 + nu * theta
 
-            def trial(ls):
-                j, _, _, _, _, g_first, theta_first, _, fallback = ls
-                alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
-                x_t, lam_t = x + alpha * dx, lam + alpha * dlam
-                if second_order_correction:
-                    # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
-                    # taken only when the full step did not reduce the infeasibility. A cond, not a select: the
-                    # correction's two solves would otherwise be paid on every trial of a long line search.
-                    def corrected(_):
-                        dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
-                        a_c = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx_c, tau),
-                                          _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx_c, tau))
-                        return x + a_c * dx_c, lam + a_c * dlam_c
+                def acceptable(alpha, theta_t, phi_t):
+                    """(accepted, f-type: by Armijo under the switching condition, which leaves the filter as it is)."""
+                    finite_t = jnp.isfinite(theta_t) & jnp.isfinite(phi_t)
+                    f_type = (theta <= theta_min) & switching_ok(alpha)
+                    armijo = phi_t <= phi0 + ETA * alpha * slope + slack
+                    decrease = (theta_t <= (1.0 - GAMMA_THETA) * theta) | (phi_t <= phi0 - GAMMA_PHI * theta + slack)
+                    outside = jnp.all((theta_t < f_theta) | (phi_t < f_phi))
+                    ok = jnp.where(f_type, armijo, decrease) & outside & (theta_t <= theta_max) & finite_t
+                    return ok, f_type
 
-                    use_soc = (j == 1) & ~fallback & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
-                    x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
-                f_t, g_t = layout.values(x_t, data, sigma, row_scale)
-                theta_t = jnp.sum(jnp.abs(g_t))
-                phi_t = f_t - mu * log_barrier(x_t)
-                ok, f_type = acceptable(alpha, theta_t, phi_t)
-                by_merit = jnp.isfinite(phi_t + theta_t) & (
-                    phi_t + nu * theta_t <= merit0 + ETA * alpha * (slope - nu * theta) + slack)
-                ok = jnp.where(fallback, by_merit, ok)
-                g_first = jnp.where(j == 0, g_t, g_first)
-                theta_first = jnp.where(j == 0, theta_t, theta_first)
-                # The filter gives up below alpha_min (after the full step and its correction): restart from the
-                # full step on the merit.
-                give_up = ~fallback & ~ok & (j >= 1) & (
-                    (alpha_max * 0.5 ** j.astype(dtype) < alpha_min) | (j + 1 >= MAX_TRIALS))
-                j_next = jnp.where(give_up, 2, j + 1)
-                return j_next, ok, x_t, lam_t, alpha, g_first, theta_first, f_type, fallback | give_up
+                def trial(ls):
+                    j, _, _, _, _, g_first, theta_first, _, fallback = ls
+                    alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
+                    x_t, lam_t = x + alpha * dx, lam + alpha * dlam
+                    if second_order_correction:
+                        # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
+                        # taken only when the full step did not reduce the infeasibility. A cond, not a select: the
+                        # correction's two solves would otherwise be paid on every trial of a long line search.
+                        def corrected(_):
+                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
+                            a_c = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx_c, tau),
+                                              _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx_c, tau))
+                            return x + a_c * dx_c, lam + a_c * dlam_c
 
-            first_trial = 0 if second_order_correction else 1
-            ls0 = (jnp.array(first_trial), tiny, x + alpha_max * dx, lam + alpha_max * dlam, alpha_max,
-                   jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True), jnp.array(False))
-            _, accepted, x_new, lam_new, alpha, _, _, f_type, fallback = jax.lax.while_loop(
-                lambda ls: ~ls[1] & (ls[0] < MAX_TRIALS), trial, ls0)
-            # An h-type step adds the current pair, with its margins, to the filter; a step by the merit empties it
-            # (as IPOPT's restoration phase ends with a point the old filter may reject).
-            grow = accepted & ~tiny & ~f_type & ~fallback
-            slot = st.filter_next % FILTER_SIZE
-            f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
-            f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
-            f_theta = jnp.where(fallback & accepted, jnp.inf, f_theta)
-            f_phi = jnp.where(fallback & accepted, jnp.inf, f_phi)
-            filter_next = jnp.where(reset | (fallback & accepted), 0, st.filter_next) + grow.astype(jnp.int32)
+                        use_soc = (j == 1) & ~fallback & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
+                        x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
+                    f_t, g_t = layout.values(x_t, data, sigma, row_scale)
+                    theta_t = jnp.sum(jnp.abs(g_t))
+                    phi_t = f_t - mu * log_barrier(x_t)
+                    ok, f_type = acceptable(alpha, theta_t, phi_t)
+                    by_merit = jnp.isfinite(phi_t + theta_t) & (
+                        phi_t + nu * theta_t <= merit0 + ETA * alpha * (slope - nu * theta) + slack)
+                    ok = jnp.where(fallback, by_merit, ok)
+                    g_first = jnp.where(j == 0, g_t, g_first)
+                    theta_first = jnp.where(j == 0, theta_t, theta_first)
+                    # The filter gives up below alpha_min (after the full step and its correction): restart from the
+                    # full step on the merit.
+                    give_up = ~fallback & ~ok & (j >= 1) & (
+                        (alpha_max * 0.5 ** j.astype(dtype) < alpha_min) | (j + 1 >= MAX_TRIALS))
+                    j_next = jnp.where(give_up, 2, j + 1)
+                    return j_next, ok, x_t, lam_t, alpha, g_first, theta_first, f_type, fallback | give_up
 
-            zl_new, zu_new = zl + alpha_z * dzl, zu + alpha_z * dzu
-            gl_new, gu_new = gaps(x_new)
-            zl_new = jnp.where(hl, jnp.clip(zl_new, mu / (KAPPA_SIGMA * gl_new), KAPPA_SIGMA * mu / gl_new), 0.0)
-            zu_new = jnp.where(hu, jnp.clip(zu_new, mu / (KAPPA_SIGMA * gu_new), KAPPA_SIGMA * mu / gu_new), 0.0)
+                first_trial = 0 if second_order_correction else 1
+                ls0 = (jnp.array(first_trial), tiny, x + alpha_max * dx, lam + alpha_max * dlam, alpha_max,
+                       jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True), jnp.array(False))
+                _, accepted, x_new, lam_new, alpha, _, _, f_type, fallback = jax.lax.while_loop(
+                    lambda ls: ~ls[1] & (ls[0] < MAX_TRIALS), trial, ls0)
+                # An h-type step adds the current pair, with its margins, to the filter; a step by the merit empties it
+                # (as IPOPT's restoration phase ends with a point the old filter may reject).
+                grow = accepted & ~tiny & ~f_type & ~fallback
+                slot = st.filter_next % FILTER_SIZE
+                f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
+                f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
+                f_theta = jnp.where(fallback & accepted, jnp.inf, f_theta)
+                f_phi = jnp.where(fallback & accepted, jnp.inf, f_phi)
+                filter_next = jnp.where(reset | (fallback & accepted), 0, st.filter_next) + grow.astype(jnp.int32)
 
-            infeasible = pt.violation > constr_viol_tol
-            negligible = jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
-            stalls = jnp.where(infeasible & negligible, st.stalls + 1, 0).astype(st.stalls.dtype)
-            failed = ~accepted | ~inertia_ok | (stalls >= STALL_COUNT)
-            failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
-            status = jnp.where(stop != RUNNING, stop, jnp.where(failed, failure, RUNNING)).astype(st.status.dtype)
-            move = status == RUNNING
-            pick = lambda new, old: jnp.where(move, new, old)  # noqa: E731
-            return _State(pick(x_new, x), pick(lam_new, lam), pick(zl_new, zl), pick(zu_new, zu), pick(mu, st.mu),
-                          pick(nu, st.nu), pick(theta_min, st.theta_min), pick(theta_max, st.theta_max),
-                          pick(f_theta, st.filter_theta), pick(f_phi, st.filter_phi),
-                          pick(filter_next, st.filter_next), pick(delta_w, st.delta_w),
-                          st.k + move.astype(st.k.dtype), status, kkt, pt.objective, pt.violation, stalls, sigma,
-                          row_scale)
+                zl_new, zu_new = zl + alpha_z * dzl, zu + alpha_z * dzu
+                gl_new, gu_new = gaps(x_new)
+                zl_new = jnp.where(hl, jnp.clip(zl_new, mu / (KAPPA_SIGMA * gl_new), KAPPA_SIGMA * mu / gl_new), 0.0)
+                zu_new = jnp.where(hu, jnp.clip(zu_new, mu / (KAPPA_SIGMA * gu_new), KAPPA_SIGMA * mu / gu_new), 0.0)
+
+                infeasible = pt.violation > constr_viol_tol
+                negligible = jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
+                stalls = jnp.where(infeasible & negligible, st.stalls + 1, 0).astype(st.stalls.dtype)
+                failed = ~accepted | ~inertia_ok | (stalls >= STALL_COUNT)
+                failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
+                status = jnp.where(stop != RUNNING, stop, jnp.where(failed, failure, RUNNING)).astype(st.status.dtype)
+                move = status == RUNNING
+                pick = lambda new, old: jnp.where(move, new, old)  # noqa: E731
+                return _State(pick(x_new, x), pick(lam_new, lam), pick(zl_new, zl), pick(zu_new, zu), pick(mu, st.mu),
+                              pick(nu, st.nu), pick(theta_min, st.theta_min), pick(theta_max, st.theta_max),
+                              pick(f_theta, st.filter_theta), pick(f_phi, st.filter_phi),
+                              pick(filter_next, st.filter_next), pick(delta_w, st.delta_w),
+                              st.k + move.astype(st.k.dtype), status, kkt, pt.objective, pt.violation, stalls, sigma,
+                              row_scale)
+
+            return jax.lax.cond(stop == RUNNING, advance, finish, None)
 
         one = jnp.ones((), dtype)
         empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
