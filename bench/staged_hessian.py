@@ -43,7 +43,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.repeat < 1:
         ap.error("--repeat must be at least 1")
-    print(f"{'system':18s} {'n':>4s} {'m':>3s} {'staged ms':>16s} {'fwd-rev ms':>16s} {'speed-up':>8s} {'hess diff':>9s}")
+    print(f"{'system':18s} {'n':>4s} {'m':>3s} {'staged ms':>16s} {'fwd-rev ms':>16s} {'speed-up':>8s} "
+          f"{'hess diff':>9s}")
     ups = []
     for name in args.systems:
         system = load(name)

@@ -5,7 +5,8 @@ A pure solver turns a problem (an :class:`~myriad.runtime.nlp.NLP`, or a system 
     solve_fn(problem): (data, z0) -> output          (jit-compiled; pure; vmap-able over data and z0)
 
 and this base writes the rest once: a single solve that measures compile and solve time apart, and
-:meth:`AbstractPureSolver.solve_batch`, one ``jax.vmap`` of the same function over a batch of ``data``.
+:meth:`AbstractPureSolver.solve_batch`, one program for a batch of ``data``: ``jax.vmap`` of the same function, or
+``jax.lax.map`` (the members in turn) where the solver says vmap gains nothing (:meth:`batch_strategy`).
 This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
 
 Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
@@ -53,12 +54,15 @@ class ScaledEvaluation:
 
 
 class _Programs:
-    """The jitted solve of one (problem, solver) pair: for callers, for one member, and vmapped for a batch."""
+    """The jitted solve of one (problem, solver) pair: for callers, for one member, and for a batch (vmapped, or
+    mapped: ``strategy``)."""
 
-    def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None):
+    def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap"):
         self.jitted = jax.jit(raw)
         self.single = CompiledFunction(raw, program_key(key, "single"))
-        self.batched = CompiledFunction(jax.vmap(raw), program_key(key, "batched"))
+        batched = jax.vmap(raw) if strategy == "vmap" else (
+            lambda data, z0: jax.lax.map(lambda member: raw(*member), (data, z0)))
+        self.batched = CompiledFunction(batched, program_key(key, f"batched:{strategy}"))
 
 
 class AbstractPureSolver(abc.ABC):
@@ -92,6 +96,11 @@ class AbstractPureSolver(abc.ABC):
         """Compile what :meth:`report` evaluates; returns the seconds spent (0 when nothing is compiled)."""
         return 0.0
 
+    def batch_strategy(self) -> str:
+        """How :meth:`solve_batch` runs its members in one program: ``"vmap"`` (the default) or ``"map"`` (in turn,
+        ``jax.lax.map``: for a solver whose members' work does not vectorise on the backend at hand)."""
+        return "vmap"
+
     # ---- written once ------------------------------------------------------------------------------------------
 
     def solve_fn(self, problem: Any) -> Callable[[Any, Any], Any]:
@@ -104,10 +113,11 @@ class AbstractPureSolver(abc.ABC):
         return self._programs(problem).jitted
 
     def solve_batch(self, problem: Any, batched_data: Any, z0: Any = None) -> list:
-        """Solve ``problem`` for a batch of ``data`` (every leaf with a leading batch axis) as one vmapped program.
+        """Solve ``problem`` for a batch of ``data`` (every leaf with a leading batch axis) as one program.
 
-        The loop runs until every member has stopped; members that stop early are frozen by ``vmap``'s select, so
-        each result equals its single solve, and each has its own status.
+        With ``vmap`` the loop runs until every member has stopped; members that stop early are frozen by ``vmap``'s
+        select, so each result equals its single solve, and each has its own status. With ``map``
+        (:meth:`batch_strategy`) the program solves the members one after another.
 
         Args:
             problem: the problem (NLP, or system for an indirect method).
@@ -154,5 +164,6 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
-        return cached(problem, ("pure", self), lambda: _Programs(
-            self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self))))
+        return cached(problem, ("pure", self, self.batch_strategy()), lambda: _Programs(
+            self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
+            self.batch_strategy()))

@@ -94,10 +94,12 @@ def test_second_solve_with_new_data_compiles_nothing():
     assert second.success and np.max(np.abs(second.z - z_star)) <= 1e-7
 
 
-def test_batch_equals_one_at_a_time():
+@pytest.mark.parametrize("strategy", ["vmap", "map"])
+def test_batch_equals_one_at_a_time(strategy):
     rng = np.random.default_rng(0)
     a, b = rng.uniform(-0.5, 1.0, (6, N)), rng.uniform(0.5, 2.0, 6)
-    solver, nlp = InteriorPoint(), simplex()
+    solver, nlp = InteriorPoint(batch=strategy), simplex()
+    assert solver.batch_strategy() == strategy
     batch = solver.solve_batch(nlp, {"params": {"a": a}, "x0": b[:, None]})
     for i, member in enumerate(batch):
         single = solver.solve(nlp, simplex_data(a[i], b[i]))
@@ -105,6 +107,12 @@ def test_batch_equals_one_at_a_time():
         np.testing.assert_allclose(member.z, single.z, rtol=0, atol=1e-12)
         np.testing.assert_allclose(member.z, simplex_exact(a[i], b[i])[0], atol=1e-7)
     assert len({round(m.objective, 8) for m in batch}) == 6
+
+
+def test_batch_strategy_auto_maps_on_a_cpu_and_rejects_unknown_names():
+    assert InteriorPoint().batch_strategy() == ("map" if jax.default_backend() == "cpu" else "vmap")
+    with pytest.raises(ValueError, match="batch must be"):
+        InteriorPoint(batch="pmap")
 
 
 def optimal_cost(solve_fn, z0):

@@ -71,7 +71,8 @@ def test_staged_derivatives_equal_jax_hessian(name, transcription):
 def test_shared_inputs_and_a_nonlinear_terminal():
     """Steps that read overlapping decisions (here every step reads z[0] as well) and a terminal with curvature."""
     def step(k, y, v):
-        return y + 0.1 * jnp.array([jnp.sin(y[1] * v[0]) + v[1] ** 2, y[0] * v[2] - jnp.cos(jnp.asarray(k, y.dtype) * 0.3 + v[0])])
+        t = jnp.asarray(k, y.dtype) * 0.3
+        return y + 0.1 * jnp.array([jnp.sin(y[1] * v[0]) + v[1] ** 2, y[0] * v[2] - jnp.cos(t + v[0])])
 
     def terminal(y):
         return jnp.exp(0.3 * y[0]) + y[1] ** 3, jnp.array([y[0] * y[1], y[1]])
