@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 from typing import Any, ClassVar, Mapping
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -176,13 +175,9 @@ class System:
     # ---- parameters as a pytree ----------------------------------------------------------------------------
     def default_params(self, dtype: Any = None) -> dict[str, jnp.ndarray]:
         """The spec's parameter values as a dict of scalar arrays (a differentiable pytree)."""
-        # Built once per dtype (arrays are immutable; the dict is a fresh copy): a warm solve of a small system is
-        # ~2 ms, and creating a dozen scalar arrays took 0.1 ms of it.
-        cache = self.__dict__.setdefault("_default_params", {})
-        key = np.dtype(jax.dtypes.canonicalize_dtype(float if dtype is None else dtype)).str
-        if key not in cache:
-            cache[key] = {k: jnp.asarray(v, dtype=dtype) for k, v in zip(self.param_names, self.param_values)}
-        return dict(cache[key])
+        # Not cached: called inside a trace these are the trace's own values, and arrays kept from one trace would
+        # be closed over by the next program as hidden arguments (which a stored program does not take).
+        return {k: jnp.asarray(v, dtype=dtype) for k, v in zip(self.param_names, self.param_values)}
 
     def guess_params(self, dtype: Any = None) -> dict[str, jnp.ndarray]:
         """Parameters with every learnable one replaced by its starting guess (system identification)."""
