@@ -145,7 +145,8 @@ class ScaledProblem:
     # (w, data) -> (F, c): fused when the NLP provides objective_and_constraints (see NLP), else both calls.
     evaluate: Callable[[Any, Any], tuple[Any, Any]]
     key: str | None = None  # the NLP's key (myriad.runtime.programs): what its functions depend on, or None
-    # (w, lam, data) -> (F, c, dF/dw, dc/dw, Hessian of F + lam^T c in w): NLP.lagrangian_derivatives, or None.
+    # (w, lam, data, objective_weight=1) -> (F, c, dF/dw, dc/dw, Hessian of the Lagrangian in w):
+    # NLP.lagrangian_derivatives, or None.
     derivatives: Callable[[Any, Any, Any], tuple] | None = None
 
     @classmethod
@@ -193,8 +194,8 @@ class ScaledProblem:
 
 def _scaled_derivatives(derivatives: Callable, s: Any) -> Callable:
     """An NLP's ``lagrangian_derivatives`` in ``w = z / s`` (the chain rule of a diagonal change of variables)."""
-    def scaled(w, lam, data):
-        f, c, grad, jac, hess = derivatives(w * s, lam, data)
+    def scaled(w, lam, data, objective_weight=1.0):
+        f, c, grad, jac, hess = derivatives(w * s, lam, data, objective_weight)
         return f, c, grad * s, jac * s, hess * s[:, None] * s[None, :]
 
     return scaled

@@ -248,8 +248,14 @@ class _Derivatives:
 
             return jax.grad(lagrangian)(w)
 
-        # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn.
-        self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient), program_key(problem.key, "ipopt.hvps"))
+        # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn. A transcription that gives its
+        # Lagrangian's Hessian itself (single shooting's stages) is asked for it whole: the seeds pick its columns.
+        if problem.derivatives is not None:
+            derivatives = problem.derivatives
+            self.hvps = CompiledFunction(lambda w, seeds, sigma, lam, data: seeds @ derivatives(w, lam, data, sigma)[4],
+                                         program_key(problem.key, "ipopt.hvps", "staged"))
+        else:
+            self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient), program_key(problem.key, "ipopt.hvps"))
         self.hvp_batch = n if jacobian_sparsity is None and n <= _DENSE_HVP_MAX else min(n, _HVP_BATCH)
         # Built by `prepare`: the pattern needs a point and data.
         self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None

@@ -39,8 +39,10 @@ def staged_derivatives(
     z: Any,
     index: Any,
     lam: Any,
+    objective_weight: Any = 1.0,
 ) -> tuple[Any, Any, Any, Any, Any]:
-    """``(F, c, dF/dz, dc/dz, Hessian of F + lam^T c)`` where ``(F, c) = terminal(y_N)``.
+    """``(F, c, dF/dz, dc/dz, Hessian of sigma F + lam^T c)`` where ``(F, c) = terminal(y_N)``, ``sigma`` the
+    ``objective_weight`` (IPOPT's ``obj_factor``: 0 in its restoration phase).
 
     Args:
         step: ``(k, y_k, v_k) -> y_{k+1}``, traceable in ``k`` (an int32 scalar).
@@ -49,6 +51,7 @@ def staged_derivatives(
         z: the decisions, shape (n_z,); every one must be read by some step (nothing else reaches ``terminal``).
         index: (N, q) integer array: step k reads ``v_k = z[index[k]]``; steps may share entries.
         lam: multipliers of ``c``, shape like c.
+        objective_weight: the objective's weight in the Lagrangian (1 by default).
 
     Returns:
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
@@ -68,7 +71,7 @@ def staged_derivatives(
 
     def lagrangian(y):
         f, c = terminal(y)
-        return f + jnp.dot(lam, c), (f, c)
+        return objective_weight * f + jnp.dot(lam, c), (f, c)
 
     (g_y, (f, c)) = jax.grad(lagrangian, has_aux=True)(y_n)
     g_yy = jax.hessian(lambda y: lagrangian(y)[0])(y_n)

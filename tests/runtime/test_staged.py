@@ -129,3 +129,30 @@ def test_interior_point_solves_the_same_either_way():
     np.testing.assert_allclose(out[0].z, out[1].z, rtol=1e-6, atol=1e-8)
     sol = solve(system, SingleShooting(controls=40, integrator=Heun()), InteriorPoint())
     assert sol.converged
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.37])
+def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
+    """IPOPT's Hessian callback weights the objective by obj_factor (0 in its restoration phase): the staged
+    products equal forward over reverse of sigma F + lam^T c."""
+    import dataclasses
+
+    from myriad.runtime.solvers.base import ScaledProblem
+    from myriad.runtime.solvers.ipopt import _Derivatives
+    from myriad.runtime.solvers.sparse import hvp_batch_fn
+
+    system = load("hiv_treatment")
+    nlp = transcribe(system, SingleShooting(controls=30, integrator=Heun()))
+    problem = ScaledProblem.from_nlp(nlp)
+    data = default_data(system)
+    w, lam = _point(nlp, 4)
+    w = w / problem.scale
+    seeds = jnp.asarray(np.random.default_rng(5).normal(size=(7, nlp.n_variables)))
+    got = jax.jit(_Derivatives(problem, None).hvps._jitted)(w, seeds, sigma, lam, data)
+    plain = dataclasses.replace(problem, derivatives=None)
+
+    def gradient(w_, s_, l_, d_):
+        return jax.grad(lambda v: s_ * plain.evaluate(v, d_)[0] + jnp.dot(l_, plain.evaluate(v, d_)[1]))(w_)
+
+    want = jax.jit(hvp_batch_fn(gradient))(w, seeds, sigma, lam, data)
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * float(jnp.max(jnp.abs(want))))
