@@ -33,24 +33,24 @@ __all__ = ["AbstractPureSolver", "ScaledEvaluation"]
 
 
 class ScaledEvaluation:
-    """The objective and constraints of a scaled problem in the *unscaled* ``z``, compiled once: what a pure solver
-    evaluates on the host to report a result (its cost and constraint violation)."""
+    """The objective and constraints of a scaled problem in the *unscaled* ``z``, compiled once as one program: what a
+    pure solver evaluates on the host to report a result (its cost and constraint violation)."""
 
     def __init__(self, problem: Any):
         self.problem = problem
-        f, scale = problem.objective, jnp.asarray(problem.scale)
-        self.objective = CompiledFunction(lambda z, data: f(z / scale, data), program_key(problem.key, "objective"))
-        if problem.n_constraints:
-            c = problem.constraints
-            self.constraints = CompiledFunction(lambda z, data: c(z / scale, data),
-                                                program_key(problem.key, "constraints"))
+        evaluate, scale = problem.evaluate, jnp.asarray(problem.scale)
+        # One program for both (a shooting NLP's F and c share a rollout): one dispatch per report, not two.
+        self.evaluate = CompiledFunction(lambda z, data: evaluate(z / scale, data),
+                                         program_key(problem.key, "evaluate"))
 
     def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
         """Compile the objective and constraints used to report the result; returns the seconds spent."""
-        seconds = self.objective.compile(z, data)
-        if self.problem.n_constraints:
-            seconds += self.constraints.compile(z, data)
-        return seconds
+        return self.evaluate.compile(z, data)
+
+    def values(self, z: np.ndarray, data: Any) -> tuple[float, np.ndarray | None]:
+        """``(F(z), c(z))`` on the host; ``c`` is None when the problem has no constraints."""
+        f, c = self.evaluate(z, data)
+        return float(f), (np.asarray(c) if self.problem.n_constraints else None)
 
 
 class _Programs:

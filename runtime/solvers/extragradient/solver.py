@@ -176,8 +176,7 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
         """
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective = float(fns.objective(z, data))
-        c = np.asarray(fns.constraints(z, data)) if fns.problem.n_constraints else None
+        objective, c = fns.values(z, data)
         violation = constraint_violation(nlp, z, c)
         converged = bool(out.converged) and np.isfinite(objective)
         if converged:

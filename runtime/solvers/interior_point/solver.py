@@ -127,8 +127,7 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         the loop converged *and* the host's violation and objective agree (finite, within ``constr_viol_tol``)."""
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective = float(fns.objective(z, data))
-        c = np.asarray(fns.constraints(z, data)) if fns.problem.n_constraints else None
+        objective, c = fns.values(z, data)
         violation = constraint_violation(nlp, z, c)
         status = Status(int(out.status))
         if status is Status.CONVERGED and not (np.isfinite(objective) and violation <= self.constr_viol_tol):
