@@ -11,6 +11,7 @@ from .midpoint import Midpoint as Midpoint
 from .rk4 import RK4 as RK4
 from .rollout import rollout as rollout
 from .rollout import rollout_with_cost as rollout_with_cost
+from .rollout import with_running_cost as with_running_cost
 
 # Name -> class, for the CLI. Every concrete integrator must be here (a test checks).
 INTEGRATORS: dict[str, type[AbstractIntegrator]] = {
@@ -31,4 +32,5 @@ __all__ = [
     "RK4",
     "rollout",
     "rollout_with_cost",
+    "with_running_cost",
 ]

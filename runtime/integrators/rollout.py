@@ -9,7 +9,7 @@ import jax.numpy as jnp
 
 from .base import AbstractIntegrator, Dynamics
 
-__all__ = ["rollout", "rollout_with_cost"]
+__all__ = ["rollout", "rollout_with_cost", "with_running_cost"]
 
 
 def rollout(
@@ -87,11 +87,17 @@ def rollout_with_cost(
     """
     x0 = jnp.asarray(x0)
     n = x0.shape[0]
+    y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
+    ys = rollout(integrator, with_running_cost(f, running_cost, n), y0, t0, h, controls, checkpoint)
+    return ys[:, :n], ys[:, n]
+
+
+def with_running_cost(f: Dynamics, running_cost: Callable[[Any, Any, Any], Any], n: int) -> Dynamics:
+    """The vector field of ``[x, c]`` with ``c' = L(x, u, t)``: the augmented system every cost-carrying rollout
+    integrates (one definition, so that all of them accumulate the cost identically)."""
 
     def f_aug(y, u, t):
         x = y[:n]
         return jnp.concatenate([f(x, u, t), jnp.reshape(running_cost(x, u, t), (1,))])
 
-    y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
-    ys = rollout(integrator, f_aug, y0, t0, h, controls, checkpoint)
-    return ys[:, :n], ys[:, n]
+    return f_aug

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrators import AbstractIntegrator
+from ..integrators import AbstractIntegrator, with_running_cost
 
 __all__ = ["Grid", "check_grid", "column", "free_node_times", "grid_argument", "node_times", "rollout_on",
            "rollout_with_cost_on", "weighted_sum"]
@@ -140,11 +140,6 @@ def rollout_with_cost_on(integrator: AbstractIntegrator, f: Callable, running_co
     :func:`~myriad.runtime.integrators.rollout_with_cost`): ``(states (K, n), cost (K,))``."""
     x0 = jnp.asarray(x0)
     n = x0.shape[0]
-
-    def f_aug(y, u, t):
-        x = y[:n]
-        return jnp.concatenate([f(x, u, t), jnp.reshape(running_cost(x, u, t), (1,))])
-
     y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
-    ys = rollout_on(integrator, f_aug, y0, times, controls, checkpoint)
+    ys = rollout_on(integrator, with_running_cost(f, running_cost, n), y0, times, controls, checkpoint)
     return ys[:, :n], ys[:, n]

@@ -8,7 +8,7 @@ from typing import ClassVar
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost
+from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost, with_running_cost
 from ..nlp import NLP
 from ..system import System
 from ._common import (
@@ -189,21 +189,17 @@ class SingleShooting(AbstractTranscription):
 
         def lagrangian_derivatives(z, lam, data, objective_weight=1.0):
             # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
-            f, L = fields(data.params)
             n = system.n_states
-
-            def f_aug(y, u, t):  # as rollout_with_cost's, so values agree with objective_and_constraints
-                return jnp.concatenate([f(y[:n], u, t), jnp.reshape(L(y[:n], u, t), (1,))])
+            f_aug = with_running_cost(*fields(data.params), n)  # the field objective_and_constraints integrates
 
             def step(k, y, v):
                 t_k, h_k = (k.astype(y.dtype) * h, h) if self.grid is None else (jnp.asarray(times)[k],
                                                                                   jnp.asarray(h)[k])
                 return integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
 
-            def terminal(y):
-                xT = y[:n]
-                rows_ = jnp.concatenate([xT[fixed] - final, xT[bounded] / sx[bounded]])
-                return y[n] + system.terminal_cost(xT, T_fixed, data.params), rows_
+            def terminal(y):  # no path rows or slacks here: rows() reads the final state alone
+                return y[n] + system.terminal_cost(y[:n], T_fixed, data.params), rows(z, y[None, :n], None, None,
+                                                                                      data.params)
 
             y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
             return staged_derivatives(step, terminal, y0, z, stage_index, lam, objective_weight)

@@ -57,7 +57,7 @@ def staged_derivatives(
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
     """
     index = jnp.asarray(index)
-    n_steps, q = index.shape
+    n_steps = index.shape[0]
     n_z, n_y = z.shape[0], y0.shape[0]
     ks = jnp.arange(n_steps, dtype=jnp.int32)
     v = z[index]
@@ -69,13 +69,16 @@ def staged_derivatives(
     y_n, ys = jax.lax.scan(forward, y0, (ks, v))  # ys[k] = y_k, k < N
     a, b = jax.vmap(jax.jacfwd(step, argnums=(1, 2)))(ks, ys, v)
 
-    def lagrangian(y):
-        f, c = terminal(y)
-        return objective_weight * f + jnp.dot(lam, c), (f, c)
+    def stacked(y):  # (F, c) as one vector, weighted by l = (objective_weight, lam) in the Lagrangian
+        f_, c_ = terminal(y)
+        return jnp.concatenate([jnp.reshape(f_, (1,)), c_])
 
-    (g_y, (f, c)) = jax.grad(lagrangian, has_aux=True)(y_n)
-    g_yy = jax.hessian(lambda y: lagrangian(y)[0])(y_n)
-    g_jac = jax.jacfwd(lambda y: jnp.concatenate([jnp.reshape(terminal(y)[0], (1,)), terminal(y)[1]]))(y_n)
+    weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, z.dtype), (1,)), lam])
+    values = stacked(y_n)
+    f, c = values[0], values[1:]
+    g_jac = jax.jacfwd(stacked)(y_n)  # (1 + m, n_y)
+    g_y = weights @ g_jac
+    g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
 
     _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), g_y, a, reverse=True)  # mu[k] = mu_{k+1}
 
