@@ -35,7 +35,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from myriad.runtime import load  # noqa: E402
-from myriad.runtime.integrators import RK4, Adaptive  # noqa: E402
+from myriad.runtime.integrators import RK4, DormandPrince  # noqa: E402
 from myriad.runtime.simulate import simulate  # noqa: E402
 from myriad.runtime.solve import Solution, solve  # noqa: E402
 from myriad.runtime.solvers import SLSQP, Extragradient, InteriorPoint, Ipopt  # noqa: E402
@@ -116,7 +116,7 @@ def resimulated_infeasibility(system, sol: Solution) -> tuple[float, str]:
         grid = np.linspace(0.0, system.horizon, 4 * times.shape[0])
         controls = np.stack([np.interp(grid, times, controls[:, j]) for j in range(controls.shape[1])], 1)
     data = default_data(system)
-    sim = simulate(system, controls, data.params, data.x0, integrator=Adaptive())
+    sim = simulate(system, controls, data.params, data.x0, integrator=DormandPrince())
     xs = np.asarray(sim.states)
     arrays = system.arrays()
     scale = state_scale(system)

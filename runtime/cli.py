@@ -83,6 +83,8 @@ def _parser(command: str | None = None):
     b.add_argument("--markdown", metavar="FILE")
     b.add_argument("--plots", metavar="DIR", help="one PNG per system (published-setting solution)")
     b.add_argument("--published-only", action="store_true", help="skip the other transcriptions")
+    b.add_argument("--jobs", type=int, metavar="N",
+                   help="worker processes, one system each at a time (default: every usable core; 1: this process)")
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
     for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
@@ -345,6 +347,8 @@ def _cmd_bench(args) -> int:
                          _output_folder_error(args.plots, "--plots"))
     if error:
         return _usage(error)
+    if args.jobs is not None and args.jobs < 1:
+        return _usage("--jobs must be at least 1")
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
@@ -352,7 +356,7 @@ def _cmd_bench(args) -> int:
 
     solver = SOLVERS[args.solver]() if args.solver else None
     rows = run_bench(names, alternatives=not args.published_only, solver=solver,
-                     progress=lambda s: print(s, flush=True), plots_dir=args.plots)
+                     progress=lambda s: print(s, flush=True), plots_dir=args.plots, jobs=args.jobs)
     total = time.perf_counter() - t0
     table_seconds = sum(r.main.compile_seconds + r.main.solve_seconds for r in rows)
     table = markdown_table(rows, total)

@@ -3,7 +3,9 @@
 A :class:`Solution` carries two evaluations that must never be mixed: ``cost`` and ``defect`` are those of the
 discretised problem itself (the NLP's quadrature and final state; in the published setting, Heun on the 100-step
 grid), and ``simulated_cost`` / ``simulated_defect`` re-simulate the solution's controls (linearly interpolated)
-in the true dynamics with the adaptive integrator.
+in the true dynamics with an adaptive integrator (Dormand-Prince 5(4), rtol 1e-8, restarted at every node:
+:class:`~myriad.runtime.integrators.DormandPrince`, which compiles in half the time of diffrax's Tsit5 and agrees
+with it to 1e-8).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .data import ProblemData
-from .integrators import Adaptive
+from .integrators import DormandPrince
 from .simulate import simulate
 from .status import Status
 from .system import System
@@ -140,7 +142,7 @@ def resimulate(system: System, times, controls, data: ProblemData) -> tuple[floa
     controls = np.asarray(controls, dtype=np.float64)
     grid = np.linspace(0.0, system.horizon, times.shape[0])
     if np.allclose(times, grid, rtol=0, atol=1e-9 * max(1.0, system.horizon)):
-        sim = simulate(system, controls, data.params, data.x0, integrator=Adaptive())
+        sim = simulate(system, controls, data.params, data.x0, integrator=DormandPrince())
         cost, xs = float(sim.cost), np.asarray(sim.states)
     else:
         cost, xs = _simulate_on(system, jnp.asarray(times), jnp.asarray(controls), data.params, jnp.asarray(data.x0))
@@ -161,6 +163,6 @@ def _simulate_on(system: System, times, controls, params, x0):
     from .transcriptions.grid import rollout_with_cost_on
 
     states, running = rollout_with_cost_on(
-        Adaptive(), lambda x, u, t: system.dynamics(x, u, t, params),
+        DormandPrince(), lambda x, u, t: system.dynamics(x, u, t, params),
         lambda x, u, t: system.running_cost(x, u, t, params), x0, times, controls)
     return running[-1] + system.terminal_cost(states[-1], times[-1], params), states

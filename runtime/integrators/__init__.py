@@ -5,6 +5,7 @@ Look one up by name with ``INTEGRATORS["rk4"]()``; see README.md in this folder 
 
 from .adaptive import Adaptive as Adaptive
 from .base import AbstractIntegrator as AbstractIntegrator
+from .dormand_prince import DormandPrince as DormandPrince
 from .euler import Euler as Euler
 from .heun import Heun as Heun
 from .midpoint import Midpoint as Midpoint
@@ -20,11 +21,13 @@ INTEGRATORS: dict[str, type[AbstractIntegrator]] = {
     "midpoint": Midpoint,
     "rk4": RK4,
     "adaptive": Adaptive,
+    "dopri5": DormandPrince,
 }
 
 __all__ = [
     "AbstractIntegrator",
     "Adaptive",
+    "DormandPrince",
     "Euler",
     "Heun",
     "INTEGRATORS",

@@ -59,3 +59,23 @@ def test_resample_puts_a_solution_on_another_grid():
     times, states, controls = tr.transcribe(system).unravel(_resample(system, tr, sol), default_data(system))
     np.testing.assert_allclose(np.asarray(states)[1:, 0], (1 + np.asarray(times) ** 2)[1:], atol=1e-4)
     np.testing.assert_allclose(np.asarray(controls)[:, 0], np.sin(np.asarray(times)), atol=1e-4)
+
+
+def test_worker_processes_give_the_rows_of_one_process_in_order():
+    """Two spawned workers (what a first `myriad bench` on two cores uses) return the same rows, in the order asked,
+    as solving in this process."""
+    import pytest
+
+    from myriad.runtime.bench import run_bench
+
+    names = ["simple_case", "harvest", "mould_fungicide"]
+    lines = []
+    parallel = run_bench(names, alternatives=False, jobs=2, progress=lines.append)
+    serial = run_bench(names, alternatives=False, jobs=1)
+    assert [r.system for r in parallel] == names and len(lines) == len(names)
+    for p, s in zip(parallel, serial):
+        assert p.meets and p.main.converged and p.main.iterations == s.main.iterations
+        np.testing.assert_allclose(p.main.cost, s.main.cost, rtol=1e-12)
+        np.testing.assert_allclose(p.main.simulated_cost, s.main.simulated_cost, rtol=1e-12)
+    with pytest.raises(ValueError, match="jobs"):
+        run_bench(names, jobs=0)

@@ -136,3 +136,8 @@ def test_bench_plots_under_a_file_is_refused(capsys, tmp_path):
     a_file.write_text("")
     err = _usage_error(capsys, ["bench", "--plots", str(a_file / "plots")])
     assert f"{a_file} is a file, not a folder" in err
+
+
+def test_bench_jobs_must_be_positive(capsys):
+    err = _usage_error(capsys, ["bench", "--systems", "van_der_pol", "--jobs", "0"])
+    assert "--jobs must be at least 1" in err

@@ -13,6 +13,7 @@ from myriad.runtime.integrators import (
     RK4,
     AbstractIntegrator,
     Adaptive,
+    DormandPrince,
     Euler,
     Heun,
     Midpoint,
@@ -69,6 +70,63 @@ def test_adaptive_matches_exact_solution():
 def test_adaptive_reports_failure_as_nan():
     xs = rollout(Adaptive(max_steps=1), _field, jnp.asarray(_X0), 0.0, 1.0, jnp.array([[0.0], [1.0]]))
     assert np.all(np.isnan(np.asarray(xs[-1])))
+
+
+def test_dormand_prince_matches_exact_solution_and_its_tolerance():
+    # Coarse node grid: each interval is subdivided; the global error follows the tolerance down.
+    errors = [_final_error(DormandPrince(rtol=r, atol=r * 1e-2), 4) for r in (1e-5, 1e-8, 1e-11)]
+    assert errors[1] < 1e-8 and errors[2] < 1e-11
+    assert errors[0] > 10 * errors[1] > 100 * errors[2]
+
+
+def test_dormand_prince_agrees_with_diffrax_on_van_der_pol():
+    # Two independent adaptive methods (diffrax's Tsit5, this Dormand-Prince pair) at the same tolerance.
+    f = lambda x, u, t: jnp.stack([x[1], (1.0 - x[0] ** 2) * x[1] - x[0] + u[0]])  # noqa: E731
+    us = jnp.asarray(np.sin(np.linspace(0.0, 10.0, 21))[:, None])
+    x0 = jnp.array([1.0, 0.0])
+    a = np.asarray(rollout(Adaptive(), f, x0, 0.0, 0.5, us))
+    b = np.asarray(rollout(DormandPrince(), f, x0, 0.0, 0.5, us))
+    np.testing.assert_allclose(b, a, rtol=1e-7, atol=1e-8)
+
+
+def test_dormand_prince_backwards_and_batched():
+    ts = np.linspace(0.0, 1.0, 5)
+    us = jnp.asarray(ts[:, None])
+    xs = rollout(DormandPrince(), _field, jnp.asarray(_X0), 0.0, 0.25, us)
+    back = rollout(DormandPrince(), _field, xs[-1], 1.0, -0.25, us[::-1])
+    np.testing.assert_allclose(np.asarray(back[-1]), _X0, rtol=1e-7)  # two runs at rtol 1e-8
+    # vmap: members finish after different numbers of steps; each gets its own answer.
+    x0s = jnp.asarray(_X0) * jnp.array([[1.0], [0.5], [1.5]])
+    batch = jax.vmap(lambda x0: rollout(DormandPrince(), _field, x0, 0.0, 0.25, us)[-1])(x0s)
+    for x0, xb in zip(x0s, batch):
+        np.testing.assert_allclose(np.asarray(xb), np.asarray(rollout(DormandPrince(), _field, x0, 0.0, 0.25, us)[-1]),
+                                   rtol=1e-14)
+
+
+def test_dormand_prince_forward_mode_matches_finite_differences():
+    # Forward mode through the while loop (reverse mode is Adaptive's job); rtol 1e-10 so that the step-size
+    # decisions, which are not differentiated, change the value by far less than the difference quotient resolves.
+    integ = DormandPrince(rtol=1e-12, atol=1e-14)
+    us = jnp.asarray(np.linspace(0.0, 1.0, 3)[:, None])
+    final = lambda x0: rollout(integ, _field, x0, 0.0, 0.5, us)[-1]  # noqa: E731
+    x0, v = jnp.asarray(_X0), jnp.array([0.3, -0.7])
+    _, tangent = jax.jvp(final, (x0,), (v,))
+    eps = 1e-6
+    fd = (np.asarray(final(x0 + eps * v)) - np.asarray(final(x0 - eps * v))) / (2 * eps)
+    np.testing.assert_allclose(np.asarray(tangent), fd, rtol=1e-6)
+
+
+def test_dormand_prince_reports_failure_as_nan():
+    xs = rollout(DormandPrince(max_steps=1), _field, jnp.asarray(_X0), 0.0, 1.0, jnp.array([[0.0], [1.0]]))
+    assert np.all(np.isnan(np.asarray(xs[-1])))
+    # A field that turns non-finite: every retry shrinks the step, none is accepted, the result is NaN.
+    blows_up = lambda x, u, t: jnp.where(t > 0.5, jnp.nan, 1.0) * x  # noqa: E731
+    x1 = DormandPrince(max_steps=50).step(blows_up, jnp.array([1.0]), 0.0, 1.0, jnp.zeros(1), jnp.zeros(1))
+    assert np.isnan(np.asarray(x1)).all()
+    with pytest.raises(ValueError, match="rtol and atol"):
+        DormandPrince(rtol=0.0)
+    with pytest.raises(ValueError, match="max_steps"):
+        DormandPrince(max_steps=0)
 
 
 @pytest.mark.parametrize("integrator", [Heun(), Midpoint(), RK4()], ids=lambda i: type(i).__name__)
