@@ -162,14 +162,16 @@ def bench_system(name: str, alternatives: bool = True, solver=None, plots_dir=No
     return row
 
 
-def _worker_setup(cache_folder: str | None, x64: bool) -> None:
-    """A worker's JAX as its parent's: float width and the same compilation cache (so programs compiled by one
-    process are read back by the others and by later runs)."""
+def _worker_setup(cache_folder: str | None, x64: bool, compiler_options: dict | None) -> None:
+    """A worker's JAX as its parent's: float width, XLA options and the same compilation cache (so programs compiled
+    by one process are read back by the others and by later runs)."""
     import jax
 
+    from . import programs
     from .cache import enable_compilation_cache
 
     jax.config.update("jax_enable_x64", x64)
+    programs.set_compiler_options(compiler_options)
     if cache_folder:
         enable_compilation_cache(cache_folder)
 
@@ -183,11 +185,13 @@ def _parallel(names, workers, alternatives, solver, plots_dir, progress) -> list
     """
     import jax
 
+    from . import programs
+
     cache_folder = jax.config.jax_compilation_cache_dir or None
     context = multiprocessing.get_context("spawn")
     rows: dict[str, BenchRow] = {}
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_setup,
-                               initargs=(cache_folder, bool(jax.config.jax_enable_x64)))
+                               initargs=(cache_folder, bool(jax.config.jax_enable_x64), programs.compiler_options()))
     try:
         futures = {pool.submit(bench_system, name, alternatives, solver, plots_dir): name for name in names}
         for future in as_completed(futures):

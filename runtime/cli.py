@@ -85,6 +85,9 @@ def _parser(command: str | None = None):
     b.add_argument("--published-only", action="store_true", help="skip the other transcriptions")
     b.add_argument("--jobs", type=int, metavar="N",
                    help="worker processes, one system each at a time (default: every usable core; 1: this process)")
+    b.add_argument("--compile", choices=("quick", "full"), default="quick",
+                   help="XLA backend optimisation: quick (level 0, the default: each program runs for one solve, and "
+                        "compiling is most of a first run) or full (XLA's default, for timing the solves)")
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
     for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
@@ -352,7 +355,10 @@ def _cmd_bench(args) -> int:
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
+    from . import programs
     from .solvers import SOLVERS
+
+    programs.set_compiler_options(programs.QUICK if args.compile == "quick" else None)
 
     solver = SOLVERS[args.solver]() if args.solver else None
     rows = run_bench(names, alternatives=not args.published_only, solver=solver,

@@ -248,7 +248,7 @@ class CompiledFunction:
         if key in self._executables:
             return 0.0
         start = time.perf_counter()
-        self._executables[key] = self.lower(*args).compile()
+        self._executables[key] = self.lower(*args).compile(compiler_options=programs.compiler_options())
         return time.perf_counter() - start
 
     def __call__(self, *args: Any) -> Any:
@@ -279,11 +279,12 @@ def compile_many(jobs: list[tuple[CompiledFunction, tuple]]) -> float:
     start = time.perf_counter()
     lowered = [(cf, _signature(args), cf.lower(*args)) for cf, args in pending]
     workers = max(1, min(len(lowered), os.cpu_count() or 1))
+    options = programs.compiler_options()
     if workers == 1:
-        executables = [low.compile() for _, _, low in lowered]
+        executables = [low.compile(compiler_options=options) for _, _, low in lowered]
     else:
         with ThreadPoolExecutor(workers) as pool:
-            executables = list(pool.map(lambda item: item[2].compile(), lowered))
+            executables = list(pool.map(lambda item: item[2].compile(compiler_options=options), lowered))
     for (cf, key, _), exe in zip(lowered, executables):
         cf._executables[key] = exe
     return time.perf_counter() - start

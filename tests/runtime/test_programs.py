@@ -137,3 +137,29 @@ def test_a_second_process_traces_nothing(tmp_path, solver):
     assert first["converged"] and first["calls"] > 0
     assert second["calls"] == 0, "the second process traced the system again"
     assert second == {**first, "calls": 0}  # bit for bit the same solve, simulation and error estimate
+
+
+def test_compiler_options_reach_every_compile_and_change_no_value():
+    """`myriad bench` compiles at XLA's backend optimisation level 0: the options reach both compile paths (a bad one
+    is refused by XLA), and the solve gives the same optimum to rounding."""
+    from myriad.runtime.solvers.base import CompiledFunction, compile_many
+
+    system = load("mould_fungicide")
+    try:
+        programs.set_compiler_options({"no_such_xla_option": 1})
+        with pytest.raises(Exception, match="no_such_xla_option"):
+            CompiledFunction(lambda x: x + 1.0).compile(np.ones(3))
+        with pytest.raises(Exception, match="no_such_xla_option"):
+            compile_many([(CompiledFunction(lambda x: 2.0 * x), (np.ones(3),)),
+                          (CompiledFunction(lambda x: 3.0 * x), (np.ones(3),))])
+        programs.set_compiler_options(programs.QUICK)
+        assert programs.compiler_options() == programs.QUICK
+        from myriad.runtime import solve
+
+        quick = solve(system, SingleShooting(controls=40, integrator=Heun()), resimulate=False)
+    finally:
+        programs.set_compiler_options(None)
+    full = solve(system, SingleShooting(controls=40, integrator=Heun()), resimulate=False)
+    assert programs.compiler_options() is None and quick.converged and full.converged
+    np.testing.assert_allclose(quick.cost, full.cost, rtol=1e-12)
+    np.testing.assert_allclose(quick.controls, full.controls, rtol=1e-9, atol=1e-12)
