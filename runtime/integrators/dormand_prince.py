@@ -3,19 +3,12 @@ r"""Dormand-Prince 5(4) with step-size control, for evaluation: the re-simulatio
 Why not :class:`~myriad.runtime.integrators.adaptive.Adaptive` (diffrax) there: every solve re-simulates its controls
 once, so that program is compiled once per system and run once, and on a first run (empty compilation cache) its
 compile time is what counts. ``diffrax.diffeqsolve`` is general (reverse-mode adjoints, dense output, events, any
-solver and controller), and the program it traces and compiles is large. Measured on the 2-core AMD EPYC, one
-system's re-simulation program (100 intervals, linearly interpolated controls), traced and compiled:
-
-=================  ==================  ===================
-system             diffrax Tsit5 (s)   this (s)
-=================  ==================  ===================
-epidemic           0.62 + 1.84         0.29 + 0.82
-rocket_landing     0.54 + 1.32         0.28 + 0.86
-hiv_treatment      0.60 + 1.64         0.23 + 0.81
-=================  ==================  ===================
-
-It runs in half the time too (epidemic 2.4 -> 1.1 ms). What it gives up: reverse-mode gradients (``lax.while_loop``
-has none; forward mode works), so anything differentiated in reverse mode keeps ``Adaptive``.
+solver and controller), and the program it traces and compiles is large. Measured on the 2-core AMD EPYC (another job
+running; ``python bench/resimulation.py``), the re-simulation of each of the 18 shipped systems' published-setting controls (100 intervals), traced
+and compiled: diffrax's Tsit5 1.55-2.56 s (median 1.9), this 0.73-1.21 s (median 0.85); a run 0.4-1.3 ms against
+0.3-0.6 ms; costs equal to 1.0e-8 relative (Pendulum; most to 1e-10), both at rtol 1e-8. What it gives up:
+reverse-mode gradients (``lax.while_loop`` has none; forward mode works), so anything differentiated in reverse mode
+keeps ``Adaptive``.
 
 One call of :meth:`DormandPrince.step` integrates ``x' = f(x, u(s), s)`` over one interval ``[t, t + h]`` with the
 control linearly interpolated, restarting at every node as ``Adaptive`` does (a kink in the control between two
