@@ -3,10 +3,11 @@ r"""Dormand-Prince 5(4) with step-size control, for evaluation: the re-simulatio
 Why not :class:`~myriad.runtime.integrators.adaptive.Adaptive` (diffrax) there: every solve re-simulates its controls
 once, so that program is compiled once per system and run once, and on a first run (empty compilation cache) its
 compile time is what counts. ``diffrax.diffeqsolve`` is general (reverse-mode adjoints, dense output, events, any
-solver and controller), and the program it traces and compiles is large. Measured on the 2-core AMD EPYC (another job
-running; ``python bench/resimulation.py``), the re-simulation of each of the 18 shipped systems' published-setting controls (100 intervals), traced
-and compiled: diffrax's Tsit5 1.55-2.56 s (median 1.9), this 0.73-1.21 s (median 0.85); a run 0.4-1.3 ms against
-0.3-0.6 ms; costs equal to 1.0e-8 relative (Pendulum; most to 1e-10), both at rtol 1e-8. What it gives up:
+solver and controller), and the program it traces and compiles is large. Measured on the 2-core AMD EPYC
+(another job running; ``python bench/resimulation.py``), the re-simulation of each of the 18 shipped systems'
+published-setting controls (100 intervals), traced and compiled: diffrax's Tsit5 1.55-2.56 s (median 1.9), this
+0.73-1.21 s (median 0.85); a run 0.4-1.3 ms against 0.3-0.6 ms; costs equal to 1.0e-8 relative (Pendulum; most to
+1e-10), both at rtol 1e-8. What it gives up:
 reverse-mode gradients (``lax.while_loop`` has none; forward mode works), so anything differentiated in reverse mode
 keeps ``Adaptive``.
 
