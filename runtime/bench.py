@@ -8,12 +8,14 @@ target when it converged, its cost is at most target + 0.5 % of |target| and eve
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import multiprocessing
 import os
+import threading
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Callable
 
 import numpy as np
@@ -102,17 +104,17 @@ def run_bench(names, *, alternatives: bool = True, solver=None, progress: Callab
     """One :class:`BenchRow` per system, in the order of ``names``.
 
     Args:
-        jobs: worker processes; 1 solves in this process, None uses every core this process may run on. A first run
-            (empty compilation cache) is compile-bound: tracing holds the GIL and XLA compiles a program on one
-            thread, so separate processes are what keep every core busy (see :func:`_parallel`).
+        jobs: processes solving, this one included; 1: this process alone, None: one per core this process may run
+            on. A first run (empty compilation cache) is compile-bound: tracing holds the GIL and XLA compiles a
+            program on one thread, so separate processes are what keep every core busy (see :func:`_parallel`).
     """
     names = list(names)
     if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
         raise ValueError(f"run_bench: jobs must be an integer >= 1 or None, got {jobs!r}")
-    workers = min(len(names), jobs or usable_cores())
-    if workers <= 1:
+    processes = min(len(names), jobs or usable_cores())
+    if processes <= 1:
         return [bench_system(name, alternatives, solver, plots_dir, progress) for name in names]
-    return _parallel(names, workers, alternatives, solver, plots_dir, progress)
+    return _parallel(names, processes, alternatives, solver, plots_dir, progress)
 
 
 def usable_cores() -> int:
@@ -176,32 +178,84 @@ def _worker_setup(cache_folder: str | None, x64: bool, compiler_options: dict | 
         enable_compilation_cache(cache_folder)
 
 
-def _parallel(names, workers, alternatives, solver, plots_dir, progress) -> list[BenchRow]:
-    """The systems spread over ``workers`` spawned processes (JAX must not be forked once started); rows come back
-    pickled (a :class:`Solution` is NumPy and plain values) and are reported as they finish.
+def _expected_work(name: str) -> int:
+    """The size of a shipped system's generated module: its programs' trace and compile time grows with it (the
+    largest, Cart-Pole's, took 2.6 s, the smallest 1.1 s), so the biggest go first and the last to finish is a small
+    one (longest-processing-time-first scheduling). 0 for anything else."""
+    import importlib.util
 
-    Measured on the 2-core AMD EPYC, empty cache, ``myriad bench --published-only``: one process used ~1.3 cores
-    (85 s of CPU in 65 s wall); the compile work is per system and independent, so two processes fill both cores.
+    from .systems import MODULES
+
+    spec = importlib.util.find_spec(MODULES[name]) if name in MODULES else None
+    return os.path.getsize(spec.origin) if spec is not None and spec.origin else 0
+
+
+def _parallel(names, jobs, alternatives, solver, plots_dir, progress) -> list[BenchRow]:
+    """The systems spread over this process and ``jobs - 1`` spawned ones (JAX must not be forked once started), each
+    taking the next system when it finishes one, the largest first (:func:`_expected_work`); rows from the workers
+    come back pickled (a :class:`Solution` is NumPy and plain values) and are reported as they finish.
+
+    This process works too rather than wait: it has imported JAX and the package already (~2.3 s of CPU that a
+    further worker would spend again). Measured on the 2-core AMD EPYC, empty cache, ``myriad bench
+    --published-only``: one process used ~1.3 cores (85 s of CPU in 65 s wall); the work is per system and
+    independent, so two processes fill both cores.
     """
     import jax
 
     from . import programs
 
-    cache_folder = jax.config.jax_compilation_cache_dir or None
-    context = multiprocessing.get_context("spawn")
+    queue = collections.deque(sorted(names, key=_expected_work, reverse=True))
+    lock = threading.Lock()
     rows: dict[str, BenchRow] = {}
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_worker_setup,
-                               initargs=(cache_folder, bool(jax.config.jax_enable_x64), programs.compiler_options()))
-    try:
-        futures = {pool.submit(bench_system, name, alternatives, solver, plots_dir): name for name in names}
-        for future in as_completed(futures):
-            row = future.result()  # a system whose published-setting solve raised ends the bench, as in one process
-            rows[futures[future]] = row
+    errors: list[BaseException] = []
+
+    def take() -> str | None:
+        with lock:
+            return queue.popleft() if queue and not errors else None
+
+    def report(row: BenchRow) -> None:
+        with lock:
+            rows[row.system] = row
             if progress:
                 for line in [*row.failures, _line(row)]:
                     progress(line)
-    finally:  # an interrupted bench drops the systems not yet started instead of waiting for them
+
+    pool = ProcessPoolExecutor(
+        max_workers=jobs - 1, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_setup,
+        initargs=(jax.config.jax_compilation_cache_dir or None, bool(jax.config.jax_enable_x64),
+                  programs.compiler_options()))
+
+    def feed() -> None:
+        """Keeps every worker on one system at a time (a thread: it only waits)."""
+        in_flight = {}
+        try:
+            for _ in range(jobs - 1):
+                if (name := take()) is not None:
+                    in_flight[pool.submit(bench_system, name, alternatives, solver, plots_dir)] = name
+            while in_flight:
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                for future in done:
+                    del in_flight[future]
+                    report(future.result())  # a published-setting solve that raised ends the bench
+                    if (name := take()) is not None:
+                        in_flight[pool.submit(bench_system, name, alternatives, solver, plots_dir)] = name
+        except BaseException as exc:  # noqa: BLE001 (re-raised in the main thread)
+            errors.append(exc)
+
+    feeder = threading.Thread(target=feed, name="bench-workers", daemon=True)
+    feeder.start()
+    try:
+        while (name := take()) is not None:
+            report(bench_system(name, alternatives, solver, plots_dir))
+    except BaseException:
+        with lock:  # an interrupted bench drops the systems not yet started instead of waiting for them
+            queue.clear()
+        raise
+    finally:
+        feeder.join()
         pool.shutdown(wait=True, cancel_futures=True)
+    if errors:
+        raise errors[0]
     return [rows[name] for name in names]
 
 

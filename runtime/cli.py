@@ -84,7 +84,8 @@ def _parser(command: str | None = None):
     b.add_argument("--plots", metavar="DIR", help="one PNG per system (published-setting solution)")
     b.add_argument("--published-only", action="store_true", help="skip the other transcriptions")
     b.add_argument("--jobs", type=int, metavar="N",
-                   help="worker processes, one system each at a time (default: every usable core; 1: this process)")
+                   help="processes solving, one system each at a time, this one included (default: one per usable "
+                        "core; 1: this process alone)")
     b.add_argument("--compile", choices=("quick", "full"), default="quick",
                    help="XLA backend optimisation: quick (level 0, the default: each program runs for one solve, and "
                         "compiling is most of a first run) or full (XLA's default, for timing the solves)")
