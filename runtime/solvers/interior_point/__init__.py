@@ -4,6 +4,8 @@ r"""``InteriorPoint``: a second-order primal-dual interior-point NLP solver (aft
   ``NLPResult`` report);
 * :mod:`.loop`: the pure ``(data, z0 or WarmStart) -> InteriorPointSolution``, one ``lax.while_loop`` of barrier
   Newton steps with a filter line search;
+* :mod:`.restoration`: IPOPT's feasibility restoration phase, iterations of the same loop where the search fails;
+* :mod:`.rules`: the barrier, fraction-to-the-boundary and filter rules both phases use;
 * :mod:`.kkt`: the Newton system's inertia-corrected dense factorisation;
 * :mod:`.problem`: slacks, bounds, scaling and the exact derivatives;
 * :mod:`.implicit`: the ``jax.custom_vjp`` (implicit function theorem) that makes the solve differentiable.

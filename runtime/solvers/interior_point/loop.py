@@ -10,22 +10,21 @@ iteration
    ``mu <- max(tol / 10, min(0.2 mu, mu^1.5))``);
 4. solves the Newton system with inertia correction (:mod:`.kkt`) and recovers the bound multipliers' steps;
 5. limits the steps by the fraction-to-the-boundary rule (``tau = max(0.99, 1 - mu)``), primal and dual apart;
-6. backtracks with IPOPT's filter line search (Wächter & Biegler 2006, sec. 2.3) on the pair (``theta = ||g||_1``,
-   barrier objective ``phi_mu``): a trial is accepted when the filter does not dominate it and it decreases
-   ``theta`` or ``phi_mu`` enough, or, near feasibility under the switching condition, by Armijo on ``phi_mu``
-   (``eta = 1e-4``); one second-order correction after a rejected full step that did not reduce ``theta`` counters
-   the Maratos effect; a non-finite trial is rejected;
+6. backtracks with IPOPT's filter line search (:mod:`.rules`, Wächter & Biegler 2006, sec. 2.3) on the pair
+   (``theta = ||g||_1``, barrier objective ``phi_mu``); one second-order correction after a rejected full step that
+   did not reduce ``theta`` counters the Maratos effect; a non-finite trial is rejected;
 7. keeps ``z`` within ``[mu / (1e10 gap), 1e10 mu / gap]`` of the primal-dual central path (IPOPT's eq. 16).
 
-The filter is a fixed array of ``FILTER_SIZE`` pairs (empty entries are ``inf``), emptied whenever ``mu`` changes, as
-IPOPT does; when full, the oldest pair is replaced. That bound is what lets the loop keep fixed shapes under ``jit``
-and ``vmap``. The filter replaced an exact-penalty merit search (``phi_mu + nu ||g||_1``, Nocedal & Wright eq. 18.36)
-that crawled on Rocket Landing (3000 iterations) and took 268 on Van der Pol (README.md has the measurements).
+The filter is a fixed array of ``FILTER_SIZE`` pairs, emptied whenever ``mu`` changes, as IPOPT does. It replaced an
+exact-penalty merit search that crawled on Rocket Landing (3000 iterations) and took 268 on Van der Pol (README.md).
 
-There is no restoration phase. Where IPOPT would enter it (the filter rejects every step down to ``alpha_min``, its
-eq. 23), the search restarts from the full step on that merit function, and a step accepted there empties the filter;
-if the merit cannot be decreased either, the solve ends, ``INFEASIBLE`` when the point is infeasible (the honest
-failure the issue allows) and ``NOT_CONVERGED`` otherwise; so do three consecutive negligible steps (below
+Where the filter rejects every step down to ``alpha_min`` (IPOPT's eq. 23), the current point joins the filter and
+the next iterations are IPOPT's feasibility restoration phase (:mod:`.restoration`), in this same loop: the Hessian
+of the constraints alone (the derivatives' objective weight is 0), an elastic feasibility problem, back to this
+iteration at a point the filter accepts. It replaced a backtracking on the merit ``phi_mu + nu ||g||_1`` that crawled
+on Predator-Prey's collocation and multiple shooting (README.md). A failed restoration ends the solve, ``INFEASIBLE``
+when the point is infeasible (an honest failure, not a proof) and ``NOT_CONVERGED`` otherwise (as does a failed search
+at a point too feasible to restore, IPOPT's rule); so do three consecutive negligible steps (below
 ``1e-10 (1 + |x|)``) at an infeasible point, where bounds block every move towards feasibility and the
 fraction-to-the-boundary rule shrinks the steps geometrically.
 """
@@ -36,26 +35,35 @@ from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ...status import Status
 from .kkt import factorize_with_inertia, solve
 from .problem import Layout
+from .restoration import Restoration, make_restoration
+from .rules import (
+    EPS,
+    FILTER_SIZE,
+    KAPPA_EPS,
+    MAX_TRIALS,
+    S_MAX,
+    TAU_MIN,
+    THETA_MAX_FACT,
+    THETA_MIN_FACT,
+    Bounds,
+    acceptable,
+    add_pair,
+    alpha_min,
+    decrease_mu,
+    fraction_to_boundary,
+)
 
 __all__ = ["InteriorPointSolution", "WarmStart", "make_solve_fn"]
 
 RUNNING = -1
-MU_INIT, KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 0.1, 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
-ETA, MAX_TRIALS = 1e-4, 45
-# The filter line search's constants, IPOPT's defaults (W&B 2006 sec. 2.3 and 3.1); FILTER_SIZE bounds the filter
-# for a fixed-shape loop: when full, the oldest pair is replaced (the filter is reset at every change of mu, and
-# between two changes the problems here add a few pairs).
-GAMMA_THETA, GAMMA_PHI, GAMMA_ALPHA, DELTA, S_THETA, S_PHI = 1e-5, 1e-8, 0.05, 1.0, 1.1, 2.3
-THETA_MIN_FACT, THETA_MAX_FACT, FILTER_SIZE = 1e-4, 1e4, 32
+MU_INIT = 0.1
 # A step below STALL_STEP (relative to |x|) at an infeasible point, STALL_COUNT times in a row, ends the solve as
 # INFEASIBLE: the fraction-to-the-boundary rule shrinks every step towards bounds that block all progress.
 STALL_STEP, STALL_COUNT = 1e-10, 3
-EPS = float(np.finfo(np.float64).eps)
 # A primal-dual warm start (IPOPT's warm_start_init_point): the barrier parameter it restarts from (the last solve's
 # ~tol/10 would leave no room to re-centre when the active set moves) and the push off the bounds (relative).
 WARM_MU, WARM_PUSH = 1e-6, 1e-9
@@ -116,7 +124,7 @@ class _State(NamedTuple):
     zl: jax.Array
     zu: jax.Array
     mu: jax.Array
-    nu: jax.Array  # the merit's penalty (the fallback line search)
+    rs: Restoration  # the restoration phase (active or not)
     theta_min: jax.Array  # the filter's thresholds on ||g||_1, fixed at the start (IPOPT's eq. 21 and 22)
     theta_max: jax.Array
     filter_theta: jax.Array  # the filter: FILTER_SIZE pairs (inf: empty), newest at filter_next - 1
@@ -133,12 +141,6 @@ class _State(NamedTuple):
     row_scale: jax.Array  # constraint row scales (solver's row order)
 
 
-def _fraction_to_boundary(v, dv, tau):
-    """The largest ``alpha`` in (0, 1] with ``v + alpha dv >= (1 - tau) v`` where ``v > 0`` (``v = 0``: no bound)."""
-    limit = jnp.where((dv < 0) & (v > 0), -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
-    return jnp.minimum(1.0, jnp.min(limit, initial=jnp.inf))
-
-
 def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
                   second_order_correction: bool = True) -> tuple[Callable[[Any, Any], InteriorPointSolution],
                                                                  Callable[[Any, Any], WarmStart]]:
@@ -146,18 +148,12 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
     variables ``z0`` or a :class:`WarmStart`, and ``cold(data, z0) -> WarmStart``, IPOPT's default start from ``z0``
     (neither jitted; see the module docstring)."""
     n, m = layout.n, layout.m
-    hl, hu = jnp.asarray(layout.has_lower), jnp.asarray(layout.has_upper)
-    xl, xu = jnp.asarray(layout.x_lower), jnp.asarray(layout.x_upper)
+    bounds = Bounds(layout)
+    hl, hu, xl, xu, gaps, log_barrier, n_bounds = (bounds.hl, bounds.hu, bounds.xl, bounds.xu, bounds.gaps,
+                                                   bounds.log_barrier, bounds.count)
     scale = jnp.asarray(layout.problem.scale)
-    n_bounds = max(int(layout.has_lower.sum() + layout.has_upper.sum()), 1)
     mu_min = tol / 10.0
-
-    def gaps(x):
-        return jnp.where(hl, x - xl, 1.0), jnp.where(hu, xu - x, 1.0)
-
-    def log_barrier(x):
-        gl, gu = gaps(x)
-        return jnp.sum(jnp.where(hl, jnp.log(gl), 0.0)) + jnp.sum(jnp.where(hu, jnp.log(gu), 0.0))
+    idle, enter, restoration_step = make_restoration(layout, tol, constr_viol_tol, mu_min)
 
     def cold(data: Any, z0: Any) -> WarmStart:
         x0 = layout.start(jnp.asarray(z0) / scale, data)
@@ -188,7 +184,8 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
         def body(st: _State) -> _State:
             x, lam, zl, zu = st.x, st.lam, st.zl, st.zu
             y = layout.multipliers(lam, st.sigma, st.row_scale)
-            f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data)
+            # One derivative program for both phases: the restoration phase weighs the objective by 0.
+            f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data, jnp.where(st.rs.active, 0.0, 1.0))
             # The scaling is IPOPT's, measured at the start (the first iteration's point; lam = 0 there).
             first_sigma, first_rows = layout.scaling(grad_f, jac_c)
             sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
@@ -196,7 +193,7 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
             finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in (pt.f, pt.grad, pt.g, pt.jac, pt.hess)]))
             kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
-            converged = finite & (kkt <= tol) & (pt.violation <= constr_viol_tol)
+            converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
             stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
                 converged, int(Status.CONVERGED), jnp.where(st.k >= max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
 
@@ -207,13 +204,11 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                                    violation=pt.violation, sigma=sigma, row_scale=row_scale)
 
             def advance(_):
+                """A main iteration: ``(the next state, failed)``."""
                 # Barrier update (monotone): as many decreases as the current point allows.
-                def decrease(mu):
-                    return jnp.maximum(mu_min, jnp.minimum(KAPPA_MU * mu, mu**THETA_MU))
-
                 mu = jax.lax.while_loop(
                     lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
-                    decrease, st.mu)
+                    lambda mu_: decrease_mu(mu_, mu_min), st.mu)
 
                 gl, gu = gaps(x)
                 sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
@@ -224,10 +219,9 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                 dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
                 dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
                 tau = jnp.maximum(TAU_MIN, 1.0 - mu)
-                alpha_max = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx, tau),
-                                        _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx, tau))
-                alpha_z = jnp.minimum(_fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
-                                      _fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
+                alpha_max = bounds.step_to_boundary(x, dx, tau)
+                alpha_z = jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
+                                      fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
 
                 # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
                 theta = jnp.sum(jnp.abs(pt.g))
@@ -239,34 +233,11 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                 reset = mu != st.mu
                 f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
                 f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
-                descent = slope < 0
-                switching_ok = lambda a: descent & (a * (-slope) ** S_PHI > DELTA * theta**S_THETA)  # noqa: E731
-                alpha_min = GAMMA_ALPHA * jnp.where(descent, jnp.minimum(
-                    jnp.minimum(GAMMA_THETA, GAMMA_PHI * theta / jnp.where(descent, -slope, 1.0)),
-                    jnp.where(theta <= theta_min,
-                              DELTA * theta**S_THETA / jnp.where(descent, -slope, 1.0) ** S_PHI, jnp.inf)), GAMMA_THETA)
+                a_min = alpha_min(theta, slope, theta_min)
                 tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
-                slack = 10.0 * EPS * jnp.abs(phi0)
-                # The fallback when the filter rejects every step down to alpha_min (where IPOPT would enter its
-                # restoration phase): backtracking on the exact-penalty merit phi + nu ||g||_1, with nu large enough
-                # for the step to be a descent direction (Nocedal & Wright, eq. 18.36); nu only grows.
-                curvature = dx @ (factors.h_s @ dx)
-                nu_req = (slope + 0.5 * jnp.maximum(curvature, 0.0)) / jnp.maximum(0.9 * theta, 1e-300)
-                nu = jnp.where((theta > 0) & (st.nu < nu_req), nu_req + 1.0, st.nu)
-                merit0 = phi0 + nu * theta
-
-                def acceptable(alpha, theta_t, phi_t):
-                    """(accepted, f-type: by Armijo under the switching condition, which leaves the filter as it is)."""
-                    finite_t = jnp.isfinite(theta_t) & jnp.isfinite(phi_t)
-                    f_type = (theta <= theta_min) & switching_ok(alpha)
-                    armijo = phi_t <= phi0 + ETA * alpha * slope + slack
-                    decrease = (theta_t <= (1.0 - GAMMA_THETA) * theta) | (phi_t <= phi0 - GAMMA_PHI * theta + slack)
-                    outside = jnp.all((theta_t < f_theta) | (phi_t < f_phi))
-                    ok = jnp.where(f_type, armijo, decrease) & outside & (theta_t <= theta_max) & finite_t
-                    return ok, f_type
 
                 def trial(ls):
-                    j, _, _, _, _, g_first, theta_first, _, fallback = ls
+                    j, _, _, x_t, lam_t, _, g_first, theta_first, _ = ls
                     alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
                     x_t, lam_t = x + alpha * dx, lam + alpha * dlam
                     if second_order_correction:
@@ -275,69 +246,68 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                         # correction's two solves would otherwise be paid on every trial of a long line search.
                         def corrected(_):
                             dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
-                            a_c = jnp.minimum(_fraction_to_boundary(jnp.where(hl, gl, 0.0), dx_c, tau),
-                                              _fraction_to_boundary(jnp.where(hu, gu, 0.0), -dx_c, tau))
+                            a_c = bounds.step_to_boundary(x, dx_c, tau)
                             return x + a_c * dx_c, lam + a_c * dlam_c
 
-                        use_soc = (j == 1) & ~fallback & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
+                        use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
                         x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
                     f_t, g_t = layout.values(x_t, data, sigma, row_scale)
                     theta_t = jnp.sum(jnp.abs(g_t))
-                    phi_t = f_t - mu * log_barrier(x_t)
-                    ok, f_type = acceptable(alpha, theta_t, phi_t)
-                    by_merit = jnp.isfinite(phi_t + theta_t) & (
-                        phi_t + nu * theta_t <= merit0 + ETA * alpha * (slope - nu * theta) + slack)
-                    ok = jnp.where(fallback, by_merit, ok)
+                    ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,
+                                            theta_max, f_theta, f_phi)
                     g_first = jnp.where(j == 0, g_t, g_first)
                     theta_first = jnp.where(j == 0, theta_t, theta_first)
-                    # The filter gives up below alpha_min (after the full step and its correction): restart from the
-                    # full step on the merit.
-                    give_up = ~fallback & ~ok & (j >= 1) & (
-                        (alpha_max * 0.5 ** j.astype(dtype) < alpha_min) | (j + 1 >= MAX_TRIALS))
-                    j_next = jnp.where(give_up, 2, j + 1)
-                    return j_next, ok, x_t, lam_t, alpha, g_first, theta_first, f_type, fallback | give_up
+                    # The search gives up below alpha_min (after the full step and its correction).
+                    give_up = ~ok & (j >= 1) & (
+                        (alpha_max * 0.5 ** j.astype(dtype) < a_min) | (j + 1 >= MAX_TRIALS))
+                    return j + 1, ok, give_up, x_t, lam_t, alpha, g_first, theta_first, f_type
 
                 first_trial = 0 if second_order_correction else 1
-                ls0 = (jnp.array(first_trial), tiny, x + alpha_max * dx, lam + alpha_max * dlam, alpha_max,
-                       jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True), jnp.array(False))
-                _, accepted, x_new, lam_new, alpha, _, _, f_type, fallback = jax.lax.while_loop(
-                    lambda ls: ~ls[1] & (ls[0] < MAX_TRIALS), trial, ls0)
-                # An h-type step adds the current pair, with its margins, to the filter; a step by the merit empties it
-                # (as IPOPT's restoration phase ends with a point the old filter may reject).
-                grow = accepted & ~tiny & ~f_type & ~fallback
-                slot = st.filter_next % FILTER_SIZE
-                f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
-                f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
-                f_theta = jnp.where(fallback & accepted, jnp.inf, f_theta)
-                f_phi = jnp.where(fallback & accepted, jnp.inf, f_phi)
-                filter_next = jnp.where(reset | (fallback & accepted), 0, st.filter_next) + grow.astype(jnp.int32)
+                ls0 = (jnp.array(first_trial), tiny, jnp.array(False), x + alpha_max * dx, lam + alpha_max * dlam,
+                       alpha_max, jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True))
+                _, accepted, _, x_new, lam_new, alpha, _, _, f_type = jax.lax.while_loop(
+                    lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
+                # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
+                restore = ~accepted & inertia_ok & ((theta > 1e-2 * tol) | (pt.violation > 0.1 * constr_viol_tol))
+                restore = restore if m else jnp.array(False)
+                # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
+                grow = (accepted & ~tiny & ~f_type) | restore
+                f_theta, f_phi = add_pair(f_theta, f_phi, st.filter_next, grow, theta, phi0)
+                filter_next = jnp.where(reset, 0, st.filter_next) + grow.astype(jnp.int32)
 
-                zl_new, zu_new = zl + alpha_z * dzl, zu + alpha_z * dzu
-                gl_new, gu_new = gaps(x_new)
-                zl_new = jnp.where(hl, jnp.clip(zl_new, mu / (KAPPA_SIGMA * gl_new), KAPPA_SIGMA * mu / gl_new), 0.0)
-                zu_new = jnp.where(hu, jnp.clip(zu_new, mu / (KAPPA_SIGMA * gu_new), KAPPA_SIGMA * mu / gu_new), 0.0)
+                zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
+                rs, lam_r, zl_r, zu_r = enter(x, pt.g, zl, zu, mu)
+                pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
+                new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
+                                  zu=pick(zu_r, zu_new), mu=mu, rs=jax.tree.map(pick, rs, st.rs), theta_min=theta_min,
+                                  theta_max=theta_max, filter_theta=f_theta, filter_phi=f_phi,
+                                  filter_next=filter_next, delta_w=delta_w)
+                return new, ~(accepted | restore) | ~inertia_ok
 
+            def restore(_):
+                return restoration_step(st, pt, data)
+
+            def iterate(_):
+                new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if m else advance(None)
                 infeasible = pt.violation > constr_viol_tol
-                negligible = jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
-                stalls = jnp.where(infeasible & negligible, st.stalls + 1, 0).astype(st.stalls.dtype)
-                failed = ~accepted | ~inertia_ok | (stalls >= STALL_COUNT)
+                negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
+                entered = new.rs.active & ~st.rs.active
+                stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
+                failed = failed | (stalls >= STALL_COUNT)
                 failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
-                status = jnp.where(stop != RUNNING, stop, jnp.where(failed, failure, RUNNING)).astype(st.status.dtype)
+                status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
                 move = status == RUNNING
-                pick = lambda new, old: jnp.where(move, new, old)  # noqa: E731
-                return _State(pick(x_new, x), pick(lam_new, lam), pick(zl_new, zl), pick(zu_new, zu), pick(mu, st.mu),
-                              pick(nu, st.nu), pick(theta_min, st.theta_min), pick(theta_max, st.theta_max),
-                              pick(f_theta, st.filter_theta), pick(f_phi, st.filter_phi),
-                              pick(filter_next, st.filter_next), pick(delta_w, st.delta_w),
-                              st.k + move.astype(st.k.dtype), status, kkt, pt.objective, pt.violation, stalls, sigma,
-                              row_scale)
+                out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
+                return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
+                                    violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
+                                    row_scale=row_scale)
 
-            return jax.lax.cond(stop == RUNNING, advance, finish, None)
+            return jax.lax.cond(stop == RUNNING, iterate, finish, None)
 
         one = jnp.ones((), dtype)
         empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
         int0 = jnp.array(0, jnp.int32)
-        st0 = _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, one, one, one,
+        st0 = _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, idle(x0), one, one,
                      empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one, jnp.nan * one,
                      jnp.inf * one, int0, ws.sigma, ws.row_scale)
         st = jax.lax.while_loop(lambda s: s.status == RUNNING, body, st0)

@@ -109,23 +109,24 @@ class Layout:
         under = jnp.where(np.isfinite(lo), np.where(np.isfinite(lo), lo, 0.0) - c, 0.0)
         return jnp.max(jnp.concatenate([jnp.zeros(1, x.dtype), over, under]))
 
-    def derivatives(self, w: jax.Array, y: jax.Array, data: Any) -> tuple:
-        """``(F, c, dF/dw, dc/dw, Hessian of F + y^T c)`` at ``w``, unscaled, ``y`` in the NLP's row order.
+    def derivatives(self, w: jax.Array, y: jax.Array, data: Any, objective_weight: Any = 1.0) -> tuple:
+        """``(F, c, dF/dw, dc/dw, Hessian of s F + y^T c)`` at ``w``, unscaled, ``y`` in the NLP's row order, ``s`` the
+        ``objective_weight`` (IPOPT's ``obj_factor``: 0 in the restoration phase; the gradient is ``F``'s whatever it).
 
-        One program: the JVPs of ``(F, c, grad_w(F + y^T c))`` along the ``n`` unit vectors (forward over reverse),
+        One program: the JVPs of ``(F, c, grad_w(s F + y^T c))`` along the ``n`` unit vectors (forward over reverse),
         whose unbatched primal is ``(F, c)`` and whose tangents are the gradient, the Jacobian and the Hessian. One
         pass instead of a first-order program and a Hessian program: half the rollouts to compile. A transcription
         that knows its structure (``NLP.lagrangian_derivatives``: single shooting's stages) gives them itself.
         """
         if self.problem.derivatives is not None:
-            f, c, grad_f, jac_c, hess = self.problem.derivatives(w, y, data)
+            f, c, grad_f, jac_c, hess = self.problem.derivatives(w, y, data, objective_weight)
             return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
         evaluate = self.problem.evaluate
 
         def lagrangian(w_):
             f_, c_ = evaluate(w_, data)
             c_ = jnp.reshape(c_, (-1,))
-            return f_ + (jnp.dot(y, c_) if self.m else 0.0), (f_, c_)
+            return objective_weight * f_ + (jnp.dot(y, c_) if self.m else 0.0), (f_, c_)
 
         def outputs(w_):
             (_, (f_, c_)), grad_l = jax.value_and_grad(lagrangian, has_aux=True)(w_)

@@ -23,9 +23,11 @@ _MESSAGES = {
     Status.CONVERGED: "converged: scaled optimality error below tol and violation below constr_viol_tol",
     Status.ITERATION_LIMIT: "maximum number of iterations reached before convergence",
     Status.NOT_FINITE: "a non-finite value (NaN or inf) in the objective, constraints or their derivatives",
-    Status.INFEASIBLE: "the line search could not decrease the merit at an infeasible point (no restoration phase): "
-                       "the problem looks locally infeasible",
-    Status.NOT_CONVERGED: "the line search or the inertia correction failed at a feasible point",
+    Status.INFEASIBLE: "the restoration phase failed at an infeasible point (it converged to a minimiser of the "
+                       "infeasibility, its line search failed, or its steps vanished): the problem looks locally "
+                       "infeasible",
+    Status.NOT_CONVERGED: "the line search, the restoration phase or the inertia correction failed at a feasible "
+                          "point",
 }
 
 
@@ -45,14 +47,16 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     Lagrangian is exact (forward over reverse, or the transcription's own ``lagrangian_derivatives``: single
     shooting's stages), the Newton system is factorised densely with inertia correction (:mod:`.kkt`), steps obey
     the fraction-to-the-boundary rule and are globalised by IPOPT's filter line search with a second-order
-    correction (:mod:`.loop`). Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`), with IPOPT's
+    correction (:mod:`.loop`), and IPOPT's feasibility restoration phase where that search fails
+    (:mod:`.restoration`). Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`), with IPOPT's
     gradient-based scaling of the objective and rows on top.
 
     Statuses: ``CONVERGED`` (optimality error at most ``tol`` and the NLP's violation at most ``constr_viol_tol``);
-    ``ITERATION_LIMIT``; ``INFEASIBLE`` (the line search failed at an infeasible point: there is no restoration
-    phase, so this is an honest failure, not a proof of infeasibility); ``NOT_FINITE`` (a NaN or inf in a value or
-    derivative at an iterate; a non-finite *trial* point is only rejected by the line search); ``NOT_CONVERGED``
-    (line search or inertia correction failed at a feasible point). Only ``CONVERGED`` is a success.
+    ``ITERATION_LIMIT``; ``INFEASIBLE`` (the restoration phase failed at an infeasible point, typically converging
+    to a minimiser of the infeasibility: an honest failure, not a proof of infeasibility); ``NOT_FINITE`` (a NaN or
+    inf in a value or derivative at an iterate; a non-finite *trial* point is only rejected by the line search);
+    ``NOT_CONVERGED`` (line search, restoration or inertia correction failed at a feasible point). Only
+    ``CONVERGED`` is a success.
 
     Pure tier: :meth:`solve_fn` is the jit-compiled ``(data, z0) ->`` :class:`InteriorPointSolution`, compiled once per
     NLP and shapes; :meth:`solve_batch` runs a batch as one program (each member keeps its status): ``batch="vmap"``

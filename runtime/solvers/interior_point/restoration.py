@@ -1,0 +1,283 @@
+r"""The feasibility restoration phase (Wächter & Biegler 2006, sec. 3.3), as iterations of the main ``while_loop``.
+
+**Why.** When the filter rejects every trial step down to ``alpha_min`` the Newton direction is useless for the
+filter, and backtracking on a merit function along it (what the loop did before) crawls: on Predator-Prey's
+collocation and multiple shooting the fraction-to-the-boundary rule cut steps to 1e-7 .. 1e-13 of the Newton step
+while ``delta_w`` grew to 1e22, ending at the iteration limit or ``INFEASIBLE`` where IPOPT (on Hermite-Simpson(100)
+through the very same iterates up to that point) enters its restoration phase and converges. This module is that
+phase; with it the loop reaches IPOPT's cost on all three (README.md has the numbers).
+
+**What.** From the point ``x_R`` where the search failed, the iterations solve the elastic feasibility problem
+
+.. math::
+    \min_{x, p, n}\ \rho \sum_i (p_i + n_i) + \frac{\zeta}{2} \|D_R (x - x_R)\|_2^2
+    \quad\text{s.t.}\quad g(x) - p + n = 0,\quad x^l \le x \le x^u,\quad p, n \ge 0,
+
+with IPOPT's ``rho = 1000``, ``zeta = sqrt(mu_R)`` and ``D_R = diag(min(1, 1 / |x_R|))`` on the NLP's variables (not
+on the slacks), by the same primal-dual barrier iteration: its own barrier parameter ``mu_R`` (from ``max(mu,
+||g||_inf)``, monotone), its own filter, fraction to the boundary and bound multipliers for ``p`` and ``n``. ``p``
+and ``n`` start at the minimiser of ``rho (p + n) - mu_R (ln p + ln n)`` with ``p - n = g(x_R)`` (IPOPT's eq. 33),
+so the elastic constraint starts satisfied. Eliminating ``dp``, ``dn`` and the bound multipliers leaves the main
+Newton system with the constraints' Hessian (the derivatives' ``objective_weight`` is 0: the one call per iteration
+serves both phases) plus ``zeta D_R^2`` and the diagonal (2,2) block ``-(Sigma_p^{-1} + Sigma_n^{-1})``. That block
+is negative definite, so the system has inertia ``(n_x, m, 0)`` exactly when ``H_s + A^T (Sigma_p^{-1} +
+Sigma_n^{-1})^{-1} A`` is positive definite: one Cholesky factorisation per inertia attempt, whatever the number of
+rows.
+
+The phase ends, as IPOPT's does, when a point reduces the infeasibility ``||g||_inf`` to ``kappa_resto = 0.9`` of the
+entry point's and is acceptable to the main filter, to which the entry point was added (so the main iteration cannot
+return to it). The main iteration then continues with IPOPT's multipliers: constraint multipliers 0, bound
+multipliers from a Newton step for complementarity over the whole restoration (all 1 if one exceeds 1e3).
+
+**Failure is honest.** If the restoration problem itself converges (its optimality error below ``tol``) at a point
+the main filter still rejects, the point is a local minimiser of the infeasibility: ``INFEASIBLE`` (``NOT_CONVERGED``
+when it is feasible after all). So does a failed restoration line search (IPOPT would start a restoration of the
+restoration) and a failed inertia correction. Restoration iterations count towards ``max_iter``.
+
+Fixed shapes: the phase's state (:class:`Restoration`) is part of the loop's state whether or not the phase is
+active, and a restoration iteration is the body of a ``while_loop`` of at most one pass, taken while ``active``:
+under ``vmap`` a ``cond`` runs both branches for every member, a loop only while some member needs it, so a batch
+with no member in restoration pays almost nothing for it (a cond alone cost a vmapped Mould Fungicide batch a fifth
+to a quarter of its throughput). The loop carries the state and point, so that XLA cannot hoist the pass out of it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.linalg import cho_solve
+
+from .kkt import DELTA_W_MAX, MAX_ATTEMPTS, _cholesky, _schedule
+from .rules import (
+    FILTER_SIZE,
+    KAPPA_EPS,
+    KAPPA_SIGMA,
+    MAX_TRIALS,
+    S_MAX,
+    TAU_MIN,
+    Bounds,
+    acceptable,
+    add_pair,
+    alpha_min,
+    decrease_mu,
+    fraction_to_boundary,
+)
+
+__all__ = ["Restoration", "make_restoration"]
+
+# IPOPT's resto_penalty_parameter, required_infeasibility_reduction, bound_mult_reset_threshold, and the restoration
+# filter's theta_max_fact (1e8, raised from the main 1e4) and theta_min_fact on a problem that starts feasible.
+RHO, KAPPA_RESTO, BOUND_MULT_RESET = 1e3, 0.9, 1e3
+THETA_MAX_R, THETA_MIN_R = 1e8, 1e-4
+
+
+class Restoration(NamedTuple):
+    """The restoration phase's state; while ``active``, the loop's ``lam``, ``zl`` and ``zu`` are the restoration
+    problem's multipliers (of ``g - p + n = 0`` and of the bounds of ``x``)."""
+
+    active: jax.Array
+    p: jax.Array  # (m,) the elastic variables and their bound multipliers
+    n: jax.Array
+    zp: jax.Array
+    zn: jax.Array
+    x_ref: jax.Array  # the entry point x_R and its bound multipliers (the main problem's)
+    zl_ref: jax.Array
+    zu_ref: jax.Array
+    mu: jax.Array  # the restoration problem's barrier parameter
+    delta_w: jax.Array  # its last Hessian regularisation
+    filter_theta: jax.Array  # its filter
+    filter_phi: jax.Array
+    filter_count: jax.Array
+    inf_ref: jax.Array  # ||g(x_R)||_inf
+
+
+def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
+    """``(idle, enter, step)`` for one barrier problem (see the module docstring):
+
+    * ``idle(x0)``: an inactive :class:`Restoration` (the loop's initial state);
+    * ``enter(x, g, zl, zu, mu) -> (Restoration, lam, zl, zu)``: start the phase at ``x``;
+    * ``step(st, pt, data) -> (st, failed)``: one restoration iteration on the loop's state ``st`` (its ``x``,
+      ``lam``, ``zl``, ``zu``, ``rs``, main filter and ``mu``) at the point ``pt``, whose Hessian is the constraints'
+      alone; it leaves the phase (``rs.active`` False, main multipliers restored) when the main filter accepts.
+    """
+    n, m = layout.n, layout.m
+    bounds = Bounds(layout)
+    hl, hu = bounds.hl, bounds.hu
+    n_bounds = bounds.count + 2 * m
+    on_w = jnp.arange(layout.n_x) < n  # the proximity term leaves the slacks free
+
+    def idle(x0):
+        # Ones, not zeros: a vmapped pass computes the inactive members' step too (and discards it); keep it finite.
+        ones, dtype = jnp.ones(m, x0.dtype), x0.dtype
+        empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
+        zero = jnp.zeros((), dtype)
+        return Restoration(jnp.array(False), ones, ones, ones, ones, x0, x0, x0, zero, zero, empty, empty,
+                           jnp.array(0, jnp.int32), zero)
+
+    def enter(x, g, zl, zu, mu):
+        mu_r = jnp.maximum(mu, jnp.max(jnp.abs(g), initial=0.0))
+        # n = a + sqrt(a^2 + b) without the cancellation at large positive g (IPOPT's eq. 33)
+        a, b = mu_r / (2.0 * RHO) - 0.5 * g, g * mu_r / (2.0 * RHO)
+        r = jnp.sqrt(a * a + b)
+        n_ = jnp.where(a >= 0, a + r, b / jnp.where(a >= 0, 1.0, r - a))
+        p = g + n_
+        empty = jnp.full(FILTER_SIZE, jnp.inf, x.dtype)
+        rs = Restoration(jnp.array(True), p, n_, mu_r / p, mu_r / n_, x, zl, zu, mu_r, jnp.zeros_like(mu_r), empty,
+                         empty, jnp.array(0, jnp.int32), jnp.max(jnp.abs(g), initial=0.0))
+        return rs, jnp.zeros_like(g), jnp.where(hl, jnp.minimum(RHO, zl), 0.0), jnp.where(hu, jnp.minimum(RHO, zu), 0.0)
+
+    def step(st, pt, data):
+        # The state and point travel in the carry: computed from loop invariants, the pass would be hoisted out of
+        # the loop by XLA and run for every member after all.
+        def once(carry):
+            st_, pt_, _, _ = carry
+            new_, failed_ = iteration(st_, pt_, data)
+            return new_, pt_, failed_, jnp.array(True)
+
+        new, _, failed, _ = jax.lax.while_loop(lambda c: c[0].rs.active & ~c[3], once,
+                                               (st, pt, jnp.array(False), jnp.array(False)))
+        return new, failed
+
+    def iteration(st, pt, data):
+        rs, x, lam, zl, zu = st.rs, st.x, st.lam, st.zl, st.zu
+        p, n_, zp, zn, g, jac = rs.p, rs.n, rs.zp, rs.zn, pt.g, pt.jac
+        gl, gu = bounds.gaps(x)
+        d2 = jnp.where(on_w, jnp.minimum(1.0, 1.0 / jnp.abs(rs.x_ref)) ** 2, 0.0)
+        inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
+
+        def error(mu_):
+            """IPOPT's E_mu of the restoration problem (its eq. 5), at zeta = sqrt of the current mu."""
+            dual_x = jnp.sqrt(rs.mu) * d2 * (x - rs.x_ref) + jac.T @ lam - zl + zu
+            dual = jnp.concatenate([dual_x, RHO - lam - zp, RHO + lam - zn])
+            compl = jnp.concatenate([jnp.where(hl, gl * zl - mu_, 0.0), jnp.where(hu, gu * zu - mu_, 0.0),
+                                     p * zp - mu_, n_ * zn - mu_])
+            z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)) + jnp.sum(zp) + jnp.sum(zn)
+            s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + n_bounds)) / S_MAX
+            s_c = jnp.maximum(S_MAX, z_sum / n_bounds) / S_MAX
+            return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g - p + n_)), inf(compl) / s_c)
+
+        # A stationary point of the restoration problem that the main filter did not accept: locally infeasible.
+        stationary = error(0.0) <= tol
+        mu = jax.lax.while_loop(lambda mu_: (mu_ > mu_min) & (error(mu_) <= KAPPA_EPS * mu_),
+                                lambda mu_: decrease_mu(mu_, mu_min), rs.mu)
+        zeta = jnp.sqrt(mu)
+
+        def objective(x_, p_, n__):
+            dev = x_ - rs.x_ref
+            return (RHO * jnp.sum(p_ + n__) + 0.5 * zeta * jnp.sum(d2 * dev * dev)
+                    - mu * (bounds.log_barrier(x_) + jnp.sum(jnp.log(p_)) + jnp.sum(jnp.log(n__))))
+
+        sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
+        sp, sn = zp / p, zn / n_
+        dinv = sp * sn / (sp + sn)  # the inverse of the eliminated (2,2) block
+        grad_x = zeta * d2 * (x - rs.x_ref) - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
+        a_p, a_n = RHO - lam - mu / p, RHO + lam - mu / n_
+        r1 = -(grad_x + jac.T @ lam)
+        r2 = -(g - p + n_) - a_p / sp + a_n / sn
+        h_s = pt.hess + jnp.diag(zeta * d2 + sig_l + sig_u)
+        chol, h_s, delta_w, inertia_ok = _factorize(h_s, jac, dinv, rs.delta_w)
+        dx, dlam = _solve(chol, h_s, jac, dinv, r1, r2)
+        dp, dn = (dlam - a_p) / sp, (-a_n - dlam) / sn
+        dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
+        dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
+        dzp, dzn = mu / p - zp - sp * dp, mu / n_ - zn - sn * dn
+        tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+        alpha_max = jnp.minimum(bounds.step_to_boundary(x, dx, tau), jnp.minimum(
+            fraction_to_boundary(p, dp, tau), fraction_to_boundary(n_, dn, tau)))
+        alpha_z = jnp.minimum(
+            jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
+                        fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau)),
+            jnp.minimum(fraction_to_boundary(zp, dzp, tau), fraction_to_boundary(zn, dzn, tau)))
+
+        # The filter line search on the restoration problem (its own filter, emptied when its mu changes).
+        theta = jnp.sum(jnp.abs(g - p + n_))
+        phi0 = objective(x, p, n_)
+        slope = grad_x @ dx + (RHO - mu / p) @ dp + (RHO - mu / n_) @ dn
+        reset = mu != rs.mu
+        f_theta = jnp.where(reset, jnp.inf, rs.filter_theta)
+        f_phi = jnp.where(reset, jnp.inf, rs.filter_phi)
+        a_min = alpha_min(theta, slope, THETA_MIN_R)
+
+        def trial(ls):
+            j = ls[0]
+            alpha = alpha_max * 0.5 ** j.astype(x.dtype)
+            x_t, p_t, n_t = x + alpha * dx, p + alpha * dp, n_ + alpha * dn
+            f_t, g_t = layout.values(x_t, data, st.sigma, st.row_scale)
+            ok, f_type = acceptable(alpha, jnp.sum(jnp.abs(g_t - p_t + n_t)), objective(x_t, p_t, n_t), theta, phi0,
+                                    slope, THETA_MIN_R, THETA_MAX_R, f_theta, f_phi)
+            give_up = ~ok & ((0.5 * alpha < a_min) | (j + 1 >= MAX_TRIALS))
+            return j + 1, ok, give_up, alpha, f_type, f_t, g_t
+
+        ls0 = (jnp.array(0), jnp.array(False), ~inertia_ok, alpha_max, jnp.array(False), pt.f, g)
+        _, accepted, _, alpha, f_type, f_t, g_t = jax.lax.while_loop(
+            lambda ls: ~ls[1] & ~ls[2], trial, ls0)
+        x_new, p_new, n_new = x + alpha * dx, p + alpha * dp, n_ + alpha * dn
+        zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
+        zp_new = jnp.clip(zp + alpha_z * dzp, mu / (KAPPA_SIGMA * p_new), KAPPA_SIGMA * mu / p_new)
+        zn_new = jnp.clip(zn + alpha_z * dzn, mu / (KAPPA_SIGMA * n_new), KAPPA_SIGMA * mu / n_new)
+        grow = accepted & ~f_type
+        f_theta, f_phi = add_pair(f_theta, f_phi, rs.filter_count, grow, theta, phi0)
+        count = jnp.where(reset, 0, rs.filter_count) + grow.astype(jnp.int32)
+
+        # Back to the main iteration (IPOPT's RestoFilterConvergenceCheck): enough less infeasible, and acceptable to
+        # the main filter (which holds the entry point with its margins) for the main barrier objective.
+        theta_o, phi_o = jnp.sum(jnp.abs(g_t)), f_t - st.mu * bounds.log_barrier(x_new)
+        done = accepted & (inf(g_t) <= jnp.maximum(KAPPA_RESTO * rs.inf_ref, min(tol, constr_viol_tol))) & jnp.all(
+            (theta_o < st.filter_theta) | (phi_o < st.filter_phi))
+        zl_main, zu_main = _reset_bound_multipliers(bounds, rs, x_new, st.mu)
+        rs_new = rs._replace(active=~done, p=p_new, n=n_new, zp=zp_new, zn=zn_new, mu=mu, delta_w=delta_w,
+                             filter_theta=f_theta, filter_phi=f_phi, filter_count=count)
+        new = st._replace(x=x_new, lam=jnp.where(done, 0.0, lam + alpha * dlam), zl=jnp.where(done, zl_main, zl_new),
+                          zu=jnp.where(done, zu_main, zu_new), rs=rs_new)
+        return new, stationary | ~inertia_ok | ~accepted
+
+    return idle, enter, step
+
+
+def _reset_bound_multipliers(bounds: Bounds, rs: Restoration, x, mu) -> tuple[Any, Any]:
+    """The main bound multipliers after the phase: a Newton step for complementarity from the entry point's, with the
+    whole change of ``x`` as the primal step, kept inside by the fraction to the boundary; all 1 if one exceeds
+    ``BOUND_MULT_RESET`` (IPOPT's ``MinC_1NrmRestorationPhase``)."""
+    (gl0, gu0), (gl, gu) = bounds.gaps(rs.x_ref), bounds.gaps(x)
+    dzl = jnp.where(bounds.hl, (mu + (gl0 - gl) * rs.zl_ref) / gl0 - rs.zl_ref, 0.0)
+    dzu = jnp.where(bounds.hu, (mu + (gu0 - gu) * rs.zu_ref) / gu0 - rs.zu_ref, 0.0)
+    tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+    alpha = jnp.minimum(fraction_to_boundary(rs.zl_ref, dzl, tau), fraction_to_boundary(rs.zu_ref, dzu, tau))
+    zl, zu = rs.zl_ref + alpha * dzl, rs.zu_ref + alpha * dzu
+    large = jnp.maximum(jnp.max(zl, initial=0.0), jnp.max(zu, initial=0.0)) > BOUND_MULT_RESET
+    return (jnp.where(bounds.hl, jnp.where(large, 1.0, zl), 0.0), jnp.where(bounds.hu, jnp.where(large, 1.0, zu), 0.0))
+
+
+def _factorize(h_s, jac, dinv, delta_w_last):
+    """IPOPT's inertia correction on ``H_s + A^T diag(dinv) A`` (see the module docstring): ``(lower Cholesky factor,
+    H_s with the accepted delta_w, delta_w, ok)``."""
+    n_x, dtype = h_s.shape[0], h_s.dtype
+    eye = jnp.eye(n_x, dtype=dtype)
+    base = h_s + jac.T @ (dinv[:, None] * jac)
+
+    def attempt(a):
+        k, delta_w, _, _ = a
+        chol, ok = _cholesky(base + delta_w * eye)
+        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, _schedule(k + 1, delta_w, delta_w_last, 1)), ok, chol
+
+    def keep_trying(a):
+        k, delta_w, done, _ = a
+        return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
+
+    zero = jnp.zeros((), dtype)
+    _, delta_w, ok, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye))
+    return chol, h_s + delta_w * eye, delta_w, ok
+
+
+def _solve(chol, h_s, jac, dinv, r1, r2):
+    """``(d_x, d_lambda)`` of ``[H_s A^T; A -diag(1/dinv)] (d_x, d_lambda) = (r1, r2)``, one step of refinement."""
+
+    def once(s1, s2):
+        dx = cho_solve((chol, True), s1 + jac.T @ (dinv * s2))
+        return dx, dinv * (jac @ dx - s2)
+
+    dx, dl = once(r1, r2)
+    cx, cl = once(h_s @ dx + jac.T @ dl - r1, jac @ dx - dl / dinv - r2)
+    return dx - cx, dl - cl

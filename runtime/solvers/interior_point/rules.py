@@ -1,0 +1,101 @@
+r"""The step rules shared by the main iteration (:mod:`.loop`) and the restoration phase (:mod:`.restoration`), which
+apply them to different barrier problems: the bounds' barrier, the monotone barrier update, the fraction to the
+boundary, and IPOPT's filter line search (Wächter & Biegler 2006, sec. 2.3).
+
+A trial point's pair (``theta``, the infeasibility ``||g||_1``, and ``phi``, the barrier objective) is accepted when
+the filter does not dominate it and it decreases ``theta`` or ``phi`` enough, or, near feasibility under the switching
+condition, by Armijo on ``phi`` (an f-type step, which leaves the filter as it is). The filter is a fixed array of
+``FILTER_SIZE`` pairs (empty entries are ``inf``); when full, the oldest pair is replaced. That bound is what lets the
+loop keep fixed shapes under ``jit`` and ``vmap``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair"]
+
+# IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
+KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
+# IPOPT's defaults (W&B 2006 sec. 2.3 and 3.1); FILTER_SIZE bounds the filter for a fixed-shape loop (it is reset at
+# every change of mu, and between two changes the problems here add a few pairs).
+ETA, MAX_TRIALS = 1e-4, 45
+GAMMA_THETA, GAMMA_PHI, GAMMA_ALPHA, DELTA, S_THETA, S_PHI = 1e-5, 1e-8, 0.05, 1.0, 1.1, 2.3
+THETA_MIN_FACT, THETA_MAX_FACT, FILTER_SIZE = 1e-4, 1e4, 32
+EPS = float(np.finfo(np.float64).eps)
+
+
+class Bounds:
+    """The finite bounds of ``x`` (the :class:`~.problem.Layout`'s) and their logarithmic barrier."""
+
+    def __init__(self, layout):
+        self.hl, self.hu = jnp.asarray(layout.has_lower), jnp.asarray(layout.has_upper)
+        self.xl, self.xu = jnp.asarray(layout.x_lower), jnp.asarray(layout.x_upper)
+        self.count = max(int(layout.has_lower.sum() + layout.has_upper.sum()), 1)
+
+    def gaps(self, x):
+        return jnp.where(self.hl, x - self.xl, 1.0), jnp.where(self.hu, self.xu - x, 1.0)
+
+    def log_barrier(self, x):
+        gl, gu = self.gaps(x)
+        return jnp.sum(jnp.where(self.hl, jnp.log(gl), 0.0)) + jnp.sum(jnp.where(self.hu, jnp.log(gu), 0.0))
+
+    def step_to_boundary(self, x, dx, tau):
+        """The primal fraction-to-the-boundary step from ``x`` along ``dx``."""
+        gl, gu = self.gaps(x)
+        return jnp.minimum(fraction_to_boundary(jnp.where(self.hl, gl, 0.0), dx, tau),
+                           fraction_to_boundary(jnp.where(self.hu, gu, 0.0), -dx, tau))
+
+    def clip_multipliers(self, x, zl, zu, mu):
+        """``z`` kept within ``[mu / (kappa_Sigma gap), kappa_Sigma mu / gap]`` (IPOPT's eq. 16)."""
+        gl, gu = self.gaps(x)
+        return (jnp.where(self.hl, jnp.clip(zl, mu / (KAPPA_SIGMA * gl), KAPPA_SIGMA * mu / gl), 0.0),
+                jnp.where(self.hu, jnp.clip(zu, mu / (KAPPA_SIGMA * gu), KAPPA_SIGMA * mu / gu), 0.0))
+
+
+def decrease_mu(mu, mu_min):
+    """One monotone barrier decrease, ``max(mu_min, min(kappa_mu mu, mu^theta_mu))``."""
+    return jnp.maximum(mu_min, jnp.minimum(KAPPA_MU * mu, mu**THETA_MU))
+
+
+def fraction_to_boundary(v, dv, tau):
+    """The largest ``alpha`` in (0, 1] with ``v + alpha dv >= (1 - tau) v`` where ``v > 0`` (``v = 0``: no bound)."""
+    limit = jnp.where((dv < 0) & (v > 0), -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+    return jnp.minimum(1.0, jnp.min(limit, initial=jnp.inf))
+
+
+def _switching(alpha, slope, theta):
+    return (slope < 0) & (alpha * (-slope) ** S_PHI > DELTA * theta**S_THETA)
+
+
+def alpha_min(theta, slope, theta_min):
+    """The step below which the search gives up (IPOPT's eq. 23)."""
+    descent = slope < 0
+    down = jnp.where(descent, -slope, 1.0)
+    return GAMMA_ALPHA * jnp.where(descent, jnp.minimum(
+        jnp.minimum(GAMMA_THETA, GAMMA_PHI * theta / down),
+        jnp.where(theta <= theta_min, DELTA * theta**S_THETA / down**S_PHI, jnp.inf)), GAMMA_THETA)
+
+
+def acceptable(alpha, theta_t, phi_t, theta, phi0, slope, theta_min, theta_max, f_theta, f_phi):
+    """(accepted, f-type: by Armijo under the switching condition, which leaves the filter as it is) for the trial
+    pair ``(theta_t, phi_t)`` at step ``alpha`` from ``(theta, phi0)`` with directional derivative ``slope``."""
+    slack = 10.0 * EPS * jnp.abs(phi0)
+    finite_t = jnp.isfinite(theta_t) & jnp.isfinite(phi_t)
+    f_type = (theta <= theta_min) & _switching(alpha, slope, theta)
+    armijo = phi_t <= phi0 + ETA * alpha * slope + slack
+    decrease = (theta_t <= (1.0 - GAMMA_THETA) * theta) | (phi_t <= phi0 - GAMMA_PHI * theta + slack)
+    outside = jnp.all((theta_t < f_theta) | (phi_t < f_phi))
+    ok = jnp.where(f_type, armijo, decrease) & outside & (theta_t <= theta_max) & finite_t
+    return ok, f_type
+
+
+def add_pair(f_theta, f_phi, count, grow, theta, phi0) -> tuple[jax.Array, jax.Array]:
+    """The filter with the pair ``(theta, phi0)``, with its margins, added where ``grow``, in slot ``count`` modulo the
+    size (pairs added so far: the oldest goes when full)."""
+    slot = count % FILTER_SIZE
+    f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
+    f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
+    return f_theta, f_phi
