@@ -29,7 +29,7 @@ from jax.test_util import check_grads
 
 from myriad.runtime import load, simulate
 from myriad.runtime.data import ProblemData, default_data
-from myriad.runtime.integrators import INTEGRATORS, Adaptive, Heun, rollout, rollout_with_cost
+from myriad.runtime.integrators import INTEGRATORS, Adaptive, DormandPrince, Heun, rollout, rollout_with_cost
 from myriad.runtime.transcriptions import (
     TRANSCRIPTIONS,
     HermiteSimpson,
@@ -64,9 +64,9 @@ CASES = {
 }
 SYSTEMS = list(CASES)
 
-# Every fixed-step integrator in the registry (a new one is covered by registering it); the adaptive one has its own
-# tests below.
-FIXED_STEP = {name: cls for name, cls in INTEGRATORS.items() if not issubclass(cls, Adaptive)}
+# Every fixed-step integrator in the registry (a new one is covered by registering it); the adaptive ones have their
+# own tests below (diffrax's here, Dormand-Prince's forward mode in test_integrators.py).
+FIXED_STEP = {name: cls for name, cls in INTEGRATORS.items() if cls.fixed_step}
 
 
 def smooth_controls(system, span: float, steps: int, amplitude: float) -> jnp.ndarray:
@@ -189,6 +189,14 @@ def test_simulate_adaptive_reverse_mode():
     f = simulate_fn("van_der_pol", Adaptive(), steps=5)
     assert_moderate(f(data.params, data.x0))
     check_grads(f, (data.params, data.x0), order=1, modes=("rev",), eps=EPS, rtol=1e-5, atol=1e-8)
+
+
+def test_dormand_prince_reverse_mode_raises():
+    """The re-simulation's Dormand-Prince loop has no reverse mode (a while loop): it raises, never a silent zero."""
+    _, data = problem("van_der_pol")
+    f = simulate_fn("van_der_pol", DormandPrince(), steps=5)
+    with pytest.raises(ValueError, match="Reverse-mode differentiation does not work"):
+        jax.grad(lambda x0: f(data.params, x0)[1])(data.x0)
 
 
 def test_simulate_adaptive_forward_mode_raises():
