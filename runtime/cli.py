@@ -359,11 +359,14 @@ def _cmd_bench(args) -> int:
     from . import programs
     from .solvers import SOLVERS
 
-    programs.set_compiler_options(programs.QUICK if args.compile == "quick" else None)
-
     solver = SOLVERS[args.solver]() if args.solver else None
-    rows = run_bench(names, alternatives=not args.published_only, solver=solver,
-                     progress=lambda s: print(s, flush=True), plots_dir=args.plots, jobs=args.jobs)
+    previous = programs.compiler_options()  # main() may be called in a process that compiles more afterwards
+    programs.set_compiler_options(programs.QUICK if args.compile == "quick" else None)
+    try:
+        rows = run_bench(names, alternatives=not args.published_only, solver=solver,
+                         progress=lambda s: print(s, flush=True), plots_dir=args.plots, jobs=args.jobs)
+    finally:
+        programs.set_compiler_options(previous)
     total = time.perf_counter() - t0
     table_seconds = sum(r.main.compile_seconds + r.main.solve_seconds for r in rows)
     table = markdown_table(rows, total)
