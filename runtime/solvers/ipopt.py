@@ -123,7 +123,8 @@ class Ipopt(AbstractNLPSolver):
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
         exact = self.hessian == "exact"
-        fns = cached(nlp, ("ipopt", exact), lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity))
+        fns = cached(nlp, ("ipopt", exact),
+                     lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity, exact))
         problem = fns.problem
         data = canonical_data(data)
         w0 = problem.to_w(initial_point(nlp, data, z0))
@@ -204,16 +205,39 @@ class _Derivatives:
     callbacks, nearly always at the same point (the trial point, then its derivatives once it is accepted); one
     program per point means one dispatch and one rollout instead of four, and the derivatives of a rejected trial
     point are the only waste.
+
+    One program (``shared``) where the transcription gives its Lagrangian's derivatives whole and the Jacobian is
+    dense (single shooting's stages): ``staged`` returns the packed point and the dense Hessian, and serves both.
+    Compiling one program instead of two took ``myriad bench --published-only --jobs 1`` (empty cache) from 55.2 to
+    42.4 s of CPU; a point call now computes a Hessian it drops (0.1-0.7 ms became 0.8-4.6 ms; the table's 18
+    solves 2.3 -> 2.5 s).
     """
 
-    def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None):
+    def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None,
+                 exact: bool = True):
         self.problem = problem
         n, m = problem.n_variables, problem.n_constraints
         evaluate = problem.evaluate
+        # Dense unless a sparse pattern is given; offsets of f, grad, c and the Jacobian values in the packed vector.
+        self.jacobian_structure = tuple(idx.ravel() for idx in np.indices((m, n)))
+        self.layout = np.cumsum([0, 1, n, m, m * n])
+        self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None
+        self.hessian_colouring: HessianColouring | None = None
+        self.shared = exact and problem.derivatives is not None and jacobian_sparsity is None
+        if self.shared:
+            derivatives = problem.derivatives
+
+            def staged(w, sigma, lam, data):
+                f, c, grad, jac, hess = derivatives(w, lam, data, sigma)
+                return jnp.concatenate([jnp.reshape(f, (1,)), grad, jnp.reshape(c, (-1,)), jnp.ravel(jac)]), hess
+
+            self.staged = CompiledFunction(staged, program_key(problem.key, "ipopt.staged"))
+            return
 
         if m and jacobian_sparsity is not None:
             rows, cols = _validated_sparsity(jacobian_sparsity, (m, n))
             jacobian_values = compressed_jacobian_fn(problem.constraints, rows, cols, (m, n))
+            self.jacobian_structure, self.layout = (rows, cols), np.cumsum([0, 1, n, m, rows.size])
 
             def point(w, data):
                 (f, c), grad = jax.value_and_grad(lambda w_: evaluate(w_, data), has_aux=True)(w)
@@ -221,7 +245,6 @@ class _Derivatives:
         else:
             # Dense (or no) Jacobian: the gradient and the m Jacobian rows are the m + 1 rows of the Jacobian of
             # (F, c), one forward pass shared by m + 1 reverse passes (forward mode when that is cheaper).
-            rows, cols = (idx.ravel() for idx in np.indices((m, n)))
 
             def point(w, data):
                 def stacked(w_):
@@ -237,9 +260,6 @@ class _Derivatives:
 
         self.point = CompiledFunction(point, program_key(
             problem.key, "ipopt.point", "dense" if jacobian_sparsity is None else "sparse"))  # the NLP's own pattern)
-        self.jacobian_structure = (rows, cols)
-        # Offsets of f, grad, c and the Jacobian values in the packed vector.
-        self.layout = np.cumsum([0, 1, n, m, rows.size])
 
         def lagrangian_gradient(w, sigma, lam, data):
             def lagrangian(w_):
@@ -248,28 +268,26 @@ class _Derivatives:
 
             return jax.grad(lagrangian)(w)
 
-        # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn. A transcription that gives its
-        # Lagrangian's Hessian itself (single shooting's stages) is asked for it whole: the seeds pick its columns.
-        if problem.derivatives is not None:
-            derivatives = problem.derivatives
-            self.hvps = CompiledFunction(lambda w, seeds, sigma, lam, data: seeds @ derivatives(w, lam, data, sigma)[4],
-                                         program_key(problem.key, "ipopt.hvps", "staged"))
-        else:
-            self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient), program_key(problem.key, "ipopt.hvps"))
+        # (w, seeds (B, n), sigma, lam, data) -> seeds @ H; see sparse.hvp_batch_fn.
+        self.hvps = CompiledFunction(hvp_batch_fn(lagrangian_gradient), program_key(problem.key, "ipopt.hvps"))
         self.hvp_batch = n if jacobian_sparsity is None and n <= _DENSE_HVP_MAX else min(n, _HVP_BATCH)
-        # Built by `prepare`: the pattern needs a point and data.
-        self.hessian_structure: tuple[np.ndarray, np.ndarray] | None = None
-        self.hessian_colouring: HessianColouring | None = None
 
     def hvp_args(self, w0: np.ndarray, data: Any) -> tuple:
         """Example arguments of ``self.hvps`` (its signature)."""
         seeds = np.zeros((self.hvp_batch, self.problem.n_variables))
         return w0, seeds, np.float64(1.0), np.zeros(self.problem.n_constraints), data
 
+    def staged_args(self, w0: np.ndarray, data: Any) -> tuple:
+        """Example arguments of ``self.staged`` (its signature; a point call's own objective factor and multipliers)."""
+        return w0, np.float64(1.0), np.zeros(self.problem.n_constraints), data
+
     def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
-        jobs = [(self.hvps, self.hvp_args(w0, data))] if exact else []
-        seconds = compile_many(jobs + [(self.point, (w0, data))])
+        if self.shared:
+            jobs = [(self.staged, self.staged_args(w0, data))]
+        else:
+            jobs = ([(self.hvps, self.hvp_args(w0, data))] if exact else []) + [(self.point, (w0, data))]
+        seconds = compile_many(jobs)
         if exact and self.hessian_structure is None:
             start = time.perf_counter()
             self._detect_hessian(w0, data)
@@ -279,16 +297,26 @@ class _Derivatives:
     def _detect_hessian(self, w0: np.ndarray, data: Any) -> None:
         """The Hessian pattern from dense Hessians at random points near ``w0`` (see :class:`Ipopt`)."""
         p, n, m = self.problem, self.problem.n_variables, self.problem.n_constraints
-        hvps = self.hvps.executable(*self.hvp_args(w0, data))
+        if self.shared:
+            staged = self.staged.executable(*self.staged_args(w0, data))
+
+            def dense(w, lam):
+                return np.asarray(staged(w, np.float64(1.0), lam, data)[1])
+        else:
+            hvps = self.hvps.executable(*self.hvp_args(w0, data))
+
+            def dense(w, lam):
+                return dense_from_hvps(lambda seeds: hvps(w, seeds, np.float64(1.0), lam, data), n, self.hvp_batch)
         rng = np.random.default_rng(0)  # deterministic: the same NLP always gets the same pattern
         samples = []
         for _ in range(2):
             w = np.clip(w0 + 0.1 * (1.0 + np.abs(w0)) * rng.standard_normal(n), p.w_lower, p.w_upper)
             lam = rng.uniform(1.0, 2.0, m) * rng.choice([-1.0, 1.0], m)
-            samples.append(dense_from_hvps(lambda seeds: hvps(w, seeds, np.float64(1.0), lam, data), n, self.hvp_batch))
+            samples.append(dense(w, lam))
         rows, cols = hessian_structure(samples, n)
         self.hessian_structure = (rows, cols)
-        self.hessian_colouring = HessianColouring(rows, cols, n, self.hvp_batch)
+        if not self.shared:
+            self.hessian_colouring = HessianColouring(rows, cols, n, self.hvp_batch)
 
 
 def _validated_sparsity(
@@ -315,14 +343,21 @@ class _Callbacks:
         # Bind the executables once: IPOPT makes several calls per iteration, and looking the signature up in
         # CompiledFunction.__call__ would flatten `data` every time.
         self._data = data
-        self._point = fns.point.executable(w0, data)
         self._layout = fns.layout
         self._jac_structure = fns.jacobian_structure
         self._recent: dict[bytes, np.ndarray] = {}
         self.iterations = 0
+        self._staged = None
+        if fns.shared:
+            self._staged = staged = fns.staged.executable(*fns.staged_args(w0, data))
+            _, one, zeros, _ = fns.staged_args(w0, data)
+            self._point = lambda w, data_: staged(w, one, zeros, data_)[0]
+        else:
+            self._point = fns.point.executable(w0, data)
         if exact:
-            self._hvps = fns.hvps.executable(*fns.hvp_args(w0, data))
-            self._colouring = fns.hessian_colouring
+            if not fns.shared:
+                self._hvps = fns.hvps.executable(*fns.hvp_args(w0, data))
+                self._colouring = fns.hessian_colouring
             self._hess_structure = fns.hessian_structure
             # cyipopt finds the callbacks by attribute; without `hessian`, IPOPT must approximate it.
             self.hessian = self._hessian
@@ -357,6 +392,8 @@ class _Callbacks:
 
     def _hessian(self, w, lagrange, obj_factor):
         sigma, lam = np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64)
+        if self._staged is not None:
+            return np.asarray(self._staged(w, sigma, lam, self._data)[1])[self._hess_structure]
         return self._colouring.values(lambda seeds: self._hvps(w, seeds, sigma, lam, self._data))
 
     def intermediate(self, alg_mod, iter_count, *args):

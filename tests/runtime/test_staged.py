@@ -148,7 +148,9 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
     w, lam = _point(nlp, 4)
     w = w / problem.scale
     seeds = jnp.asarray(np.random.default_rng(5).normal(size=(7, nlp.n_variables)))
-    got = jax.jit(_Derivatives(problem, None).hvps._jitted)(w, seeds, sigma, lam, data)
+    fns = _Derivatives(problem, None)
+    assert fns.shared  # one program for IPOPT's point and Hessian callbacks
+    got = seeds @ jax.jit(fns.staged._jitted)(w, sigma, lam, data)[1]
     plain = dataclasses.replace(problem, derivatives=None)
 
     def gradient(w_, s_, l_, d_):
@@ -156,3 +158,9 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
 
     want = jax.jit(hvp_batch_fn(gradient))(w, seeds, sigma, lam, data)
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * float(jnp.max(jnp.abs(want))))
+    # The packed first-order part: F, its gradient, c and the dense Jacobian, row-major as the callbacks read it.
+    packed = jax.jit(fns.staged._jitted)(w, sigma, lam, data)[0]
+    (f, c), grad = jax.value_and_grad(lambda v: plain.evaluate(v, data), has_aux=True)(w)
+    jac = jax.jacfwd(lambda v: plain.evaluate(v, data)[1])(w)
+    want_packed = jnp.concatenate([jnp.reshape(f, (1,)), grad, jnp.ravel(c), jnp.ravel(jac)])
+    np.testing.assert_allclose(packed, want_packed, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want_packed))))
