@@ -43,8 +43,8 @@ class NLP:
             transcription's F and c come from the same rollout; fusing them halves the integration work of every
             evaluation and of every derivative program built on both (the Lagrangian's Hessian). Must agree with
             ``objective`` and ``constraints``; :meth:`evaluate` falls back to calling them separately.
-        lagrangian_derivatives: optional (z, lam, data, objective_weight=1) -> (F, c, dF/dz, dc/dz, Hessian of
-            objective_weight F + lam^T c), the
+        lagrangian_derivatives: optional (z, lam, data, objective_weight=1, hessian=True) -> (F, c, dF/dz, dc/dz,
+            Hessian of objective_weight F + lam^T c; zeros where the traced boolean ``hessian`` is false), the
             second-order solvers' derivatives by the transcription's own structure (single shooting: stage by stage,
             :mod:`~myriad.runtime.transcriptions.staged`). Must agree with differentiating ``evaluate``; solvers
             fall back to that (forward over reverse) without it.

@@ -194,8 +194,8 @@ class ScaledProblem:
 
 def _scaled_derivatives(derivatives: Callable, s: Any) -> Callable:
     """An NLP's ``lagrangian_derivatives`` in ``w = z / s`` (the chain rule of a diagonal change of variables)."""
-    def scaled(w, lam, data, objective_weight=1.0):
-        f, c, grad, jac, hess = derivatives(w * s, lam, data, objective_weight)
+    def scaled(w, lam, data, objective_weight=1.0, hessian=True):
+        f, c, grad, jac, hess = derivatives(w * s, lam, data, objective_weight, hessian)
         return f, c, grad * s, jac * s, hess * s[:, None] * s[None, :]
 
     return scaled

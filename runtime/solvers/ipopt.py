@@ -209,8 +209,7 @@ class _Derivatives:
     One program (``shared``) where the transcription gives its Lagrangian's derivatives whole and the Jacobian is
     dense (single shooting's stages): ``staged`` returns the packed point and the dense Hessian, and serves both.
     Compiling one program instead of two took ``myriad bench --published-only --jobs 1`` (empty cache) from 55.2 to
-    42.4 s of CPU; a point call now computes a Hessian it drops (0.1-0.7 ms became 0.8-4.6 ms; the table's 18
-    solves 2.3 -> 2.5 s).
+    42.4 s of CPU; a point call skips the second-order part (``hessian=False``, a ``lax.cond`` in the program).
     """
 
     def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None,
@@ -227,8 +226,8 @@ class _Derivatives:
         if self.shared:
             derivatives = problem.derivatives
 
-            def staged(w, sigma, lam, data):
-                f, c, grad, jac, hess = derivatives(w, lam, data, sigma)
+            def staged(w, sigma, lam, data, hessian):  # hessian False: the first-order part alone (lax.cond)
+                f, c, grad, jac, hess = derivatives(w, lam, data, sigma, hessian)
                 return jnp.concatenate([jnp.reshape(f, (1,)), grad, jnp.reshape(c, (-1,)), jnp.ravel(jac)]), hess
 
             self.staged = CompiledFunction(staged, program_key(problem.key, "ipopt.staged"))
@@ -279,7 +278,7 @@ class _Derivatives:
 
     def staged_args(self, w0: np.ndarray, data: Any) -> tuple:
         """Example arguments of ``self.staged`` (its signature; a point call's own objective factor and multipliers)."""
-        return w0, np.float64(1.0), np.zeros(self.problem.n_constraints), data
+        return w0, np.float64(1.0), np.zeros(self.problem.n_constraints), data, np.bool_(False)
 
     def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
         """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
@@ -301,7 +300,7 @@ class _Derivatives:
             staged = self.staged.executable(*self.staged_args(w0, data))
 
             def dense(w, lam):
-                return np.asarray(staged(w, np.float64(1.0), lam, data)[1])
+                return np.asarray(staged(w, np.float64(1.0), lam, data, np.bool_(True))[1])
         else:
             hvps = self.hvps.executable(*self.hvp_args(w0, data))
 
@@ -350,8 +349,8 @@ class _Callbacks:
         self._staged = None
         if fns.shared:
             self._staged = staged = fns.staged.executable(*fns.staged_args(w0, data))
-            _, one, zeros, _ = fns.staged_args(w0, data)
-            self._point = lambda w, data_: staged(w, one, zeros, data_)[0]
+            _, one, zeros, _, first_order = fns.staged_args(w0, data)
+            self._point = lambda w, data_: staged(w, one, zeros, data_, first_order)[0]
         else:
             self._point = fns.point.executable(w0, data)
         if exact:
@@ -393,7 +392,7 @@ class _Callbacks:
     def _hessian(self, w, lagrange, obj_factor):
         sigma, lam = np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64)
         if self._staged is not None:
-            return np.asarray(self._staged(w, sigma, lam, self._data)[1])[self._hess_structure]
+            return np.asarray(self._staged(w, sigma, lam, self._data, np.bool_(True))[1])[self._hess_structure]
         return self._colouring.values(lambda seeds: self._hvps(w, seeds, sigma, lam, self._data))
 
     def intermediate(self, alg_mod, iter_count, *args):

@@ -187,7 +187,7 @@ class SingleShooting(AbstractTranscription):
             us = controls_of(z)
             return jnp.asarray(ts), run(f, data.x0, us, ts), us
 
-        def lagrangian_derivatives(z, lam, data, objective_weight=1.0):
+        def lagrangian_derivatives(z, lam, data, objective_weight=1.0, hessian=True):
             # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
             n = system.n_states
             f_aug = with_running_cost(*fields(data.params), n)  # the field objective_and_constraints integrates
@@ -202,7 +202,7 @@ class SingleShooting(AbstractTranscription):
                                                                                       data.params)
 
             y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
-            return staged_derivatives(step, terminal, y0, z, stage_index, lam, objective_weight)
+            return staged_derivatives(step, terminal, y0, z, stage_index, lam, objective_weight, hessian)
 
         # Step k reads u_k and u_{k+1}; staged only where nothing else reaches the rows (no path rows, slacks or T).
         stage_index = np.arange(N)[:, None] * m + np.arange(2 * m)[None, :]

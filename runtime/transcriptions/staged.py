@@ -40,6 +40,7 @@ def staged_derivatives(
     index: Any,
     lam: Any,
     objective_weight: Any = 1.0,
+    hessian: Any = True,
 ) -> tuple[Any, Any, Any, Any, Any]:
     """``(F, c, dF/dz, dc/dz, Hessian of sigma F + lam^T c)`` where ``(F, c) = terminal(y_N)``, ``sigma`` the
     ``objective_weight`` (IPOPT's ``obj_factor``: 0 in its restoration phase).
@@ -52,6 +53,8 @@ def staged_derivatives(
         index: (N, q) integer array: step k reads ``v_k = z[index[k]]``; steps may share entries.
         lam: multipliers of ``c``, shape like c.
         objective_weight: the objective's weight in the Lagrangian (1 by default).
+        hessian: True, or a traced boolean: where false the Hessian is zeros and its second-order part is skipped
+            (a ``lax.cond``), so that one compiled program serves first-order calls at first-order cost (IPOPT's).
 
     Returns:
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
@@ -77,27 +80,33 @@ def staged_derivatives(
     values = stacked(y_n)
     f, c = values[0], values[1:]
     g_jac = jax.jacfwd(stacked)(y_n)  # (1 + m, n_y)
-    g_y = weights @ g_jac
-    g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
-
-    _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), g_y, a, reverse=True)  # mu[k] = mu_{k+1}
-
-    def curvature(k, y, vk, mu_k):
-        return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
-
-    w = jax.vmap(curvature)(ks, ys, v, mu)
-    w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
-    _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), g_yy, (a, w_yy),
-                             reverse=True)  # q_next[k] = Q_{k+1}
     c_in = jax.vmap(lambda b_k, idx: jnp.zeros((n_y, n_z), z.dtype).at[:, idx].add(b_k))(b, index)  # B_k P_k
     s_n, s = jax.lax.scan(lambda s_, inp: (inp[0] @ s_ + inp[1], s_), jnp.zeros((n_y, n_z), z.dtype),
                           (a, c_in))  # s[k] = S_k
-
-    bq = jnp.einsum("kai,kab->kib", b, q_next)
-    d = w_vv + jnp.einsum("kib,kbj->kij", bq, b)
-    r = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
-    rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(r)
-    diag = jnp.zeros((n_z, n_z), z.dtype).at[index[:, :, None], index[:, None, :]].add(d)
     jac = g_jac @ s_n
-    full = diag + 2.0 * rows  # H without the transposed cross terms; symmetrised in one sum (exactly symmetric)
-    return f, c, jac[0], jac[1:], 0.5 * (full + full.T)
+
+    def second_order():
+        g_y = weights @ g_jac
+        g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
+        _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), g_y, a, reverse=True)  # mu[k] = mu_{k+1}
+
+        def curvature(k, y, vk, mu_k):
+            return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
+
+        w = jax.vmap(curvature)(ks, ys, v, mu)
+        w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
+        _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), g_yy, (a, w_yy),
+                                 reverse=True)  # q_next[k] = Q_{k+1}
+        bq = jnp.einsum("kai,kab->kib", b, q_next)
+        d = w_vv + jnp.einsum("kib,kbj->kij", bq, b)
+        r = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
+        rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(r)
+        diag = jnp.zeros((n_z, n_z), z.dtype).at[index[:, :, None], index[:, None, :]].add(d)
+        full = diag + 2.0 * rows  # H without the transposed cross terms; symmetrised in one sum (exactly symmetric)
+        return 0.5 * (full + full.T)
+
+    if hessian is True:
+        hess = second_order()
+    else:
+        hess = jax.lax.cond(hessian, second_order, lambda: jnp.zeros((n_z, n_z), z.dtype))
+    return f, c, jac[0], jac[1:], hess

@@ -150,7 +150,7 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
     seeds = jnp.asarray(np.random.default_rng(5).normal(size=(7, nlp.n_variables)))
     fns = _Derivatives(problem, None)
     assert fns.shared  # one program for IPOPT's point and Hessian callbacks
-    got = seeds @ jax.jit(fns.staged._jitted)(w, sigma, lam, data)[1]
+    got = seeds @ jax.jit(fns.staged._jitted)(w, sigma, lam, data, True)[1]
     plain = dataclasses.replace(problem, derivatives=None)
 
     def gradient(w_, s_, l_, d_):
@@ -159,7 +159,8 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
     want = jax.jit(hvp_batch_fn(gradient))(w, seeds, sigma, lam, data)
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * float(jnp.max(jnp.abs(want))))
     # The packed first-order part: F, its gradient, c and the dense Jacobian, row-major as the callbacks read it.
-    packed = jax.jit(fns.staged._jitted)(w, sigma, lam, data)[0]
+    packed, skipped = jax.jit(fns.staged._jitted)(w, sigma, lam, data, False)
+    assert not np.any(skipped)  # a first-order call: the Hessian's part not computed
     (f, c), grad = jax.value_and_grad(lambda v: plain.evaluate(v, data), has_aux=True)(w)
     jac = jax.jacfwd(lambda v: plain.evaluate(v, data)[1])(w)
     want_packed = jnp.concatenate([jnp.reshape(f, (1,)), grad, jnp.ravel(c), jnp.ravel(jac)])
