@@ -24,12 +24,22 @@ iteration: Rocket Landing's published NLP took 4.9 ms. Here the step's derivativ
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-__all__ = ["staged_derivatives"]
+__all__ = ["Stages", "stage_derivatives", "staged_derivatives"]
+
+
+class Stages(NamedTuple):
+    """The rollout's linearisation and the Lagrangian's curvature, stage by stage (see :func:`stage_derivatives`)."""
+
+    a: Any  # (N, n_y, n_y) A_k = d Phi_k / d y_k
+    b: Any  # (N, n_y, q) B_k = d Phi_k / d v_k
+    w: Any  # (N, n_y + q, n_y + q) W_k, the Hessian of mu_{k+1}^T Phi_k in (y_k, v_k)
+    g_yy: Any  # (n_y, n_y) the Hessian of l^T G at y_N
+    g_c: Any  # (m, n_y) dc/dy_N: the rows' Jacobian is g_c S_N
 
 
 def staged_derivatives(
@@ -57,8 +67,29 @@ def staged_derivatives(
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
     """
     index = jnp.asarray(index)
-    n_steps = index.shape[0]
     n_z, n_y = z.shape[0], y0.shape[0]
+    f, c, g_jac, st = _stages(step, terminal, y0, z, index, lam, objective_weight)
+    a, b, w = st.a, st.b, st.w
+    w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
+    _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), st.g_yy, (a, w_yy),
+                             reverse=True)  # q_next[k] = Q_{k+1}
+    c_in = jax.vmap(lambda b_k, idx: jnp.zeros((n_y, n_z), z.dtype).at[:, idx].add(b_k))(b, index)  # B_k P_k
+    s_n, s = jax.lax.scan(lambda s_, inp: (inp[0] @ s_ + inp[1], s_), jnp.zeros((n_y, n_z), z.dtype),
+                          (a, c_in))  # s[k] = S_k
+
+    bq = jnp.einsum("kai,kab->kib", b, q_next)
+    d = w_vv + jnp.einsum("kib,kbj->kij", bq, b)
+    r = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
+    rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(r)
+    diag = jnp.zeros((n_z, n_z), z.dtype).at[index[:, :, None], index[:, None, :]].add(d)
+    jac = g_jac @ s_n
+    full = diag + 2.0 * rows  # H without the transposed cross terms; symmetrised in one sum (exactly symmetric)
+    return f, c, jac[0], jac[1:], 0.5 * (full + full.T)
+
+
+def _stages(step, terminal, y0, z, index, lam, objective_weight):
+    """``(F, c, dG/dy_N (1 + m, n_y), Stages)``: the rollout, the steps' Jacobians, the adjoint and the curvature."""
+    n_steps, n_y = index.shape[0], y0.shape[0]
     ks = jnp.arange(n_steps, dtype=jnp.int32)
     v = z[index]
 
@@ -75,29 +106,44 @@ def staged_derivatives(
 
     weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, z.dtype), (1,)), lam])
     values = stacked(y_n)
-    f, c = values[0], values[1:]
     g_jac = jax.jacfwd(stacked)(y_n)  # (1 + m, n_y)
-    g_y = weights @ g_jac
     g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
-
-    _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), g_y, a, reverse=True)  # mu[k] = mu_{k+1}
+    _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), weights @ g_jac, a, reverse=True)  # mu[k] = mu_{k+1}
 
     def curvature(k, y, vk, mu_k):
         return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
 
     w = jax.vmap(curvature)(ks, ys, v, mu)
-    w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
-    _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), g_yy, (a, w_yy),
-                             reverse=True)  # q_next[k] = Q_{k+1}
-    c_in = jax.vmap(lambda b_k, idx: jnp.zeros((n_y, n_z), z.dtype).at[:, idx].add(b_k))(b, index)  # B_k P_k
-    s_n, s = jax.lax.scan(lambda s_, inp: (inp[0] @ s_ + inp[1], s_), jnp.zeros((n_y, n_z), z.dtype),
-                          (a, c_in))  # s[k] = S_k
+    return values[0], values[1:], g_jac, Stages(a, b, w, g_yy, g_jac[1:])
 
-    bq = jnp.einsum("kai,kab->kib", b, q_next)
-    d = w_vv + jnp.einsum("kib,kbj->kij", bq, b)
-    r = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
-    rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(r)
-    diag = jnp.zeros((n_z, n_z), z.dtype).at[index[:, :, None], index[:, None, :]].add(d)
-    jac = g_jac @ s_n
-    full = diag + 2.0 * rows  # H without the transposed cross terms; symmetrised in one sum (exactly symmetric)
-    return f, c, jac[0], jac[1:], 0.5 * (full + full.T)
+
+def stage_derivatives(
+    step: Callable[[Any, Any, Any], Any],
+    terminal: Callable[[Any], tuple[Any, Any]],
+    y0: Any,
+    z: Any,
+    index: Any,
+    lam: Any,
+    objective_weight: Any = 1.0,
+) -> tuple[Any, Any, Any, Any, Stages]:
+    r"""``(F, c, dF/dz, dc/dz, Stages)``: :func:`staged_derivatives` with the Hessian left as its stages.
+
+    The Hessian of ``sigma F + lam^T c`` in ``z`` is that of the linear-quadratic problem (Dunn & Bertsekas 1989)
+
+    .. math::
+        \tfrac12 \sum_k \begin{pmatrix} \delta y_k \\ \delta v_k \end{pmatrix}^\top W_k
+        \begin{pmatrix} \delta y_k \\ \delta v_k \end{pmatrix} + \tfrac12 \delta y_N^\top G_{yy} \delta y_N,
+        \qquad \delta y_{k+1} = A_k \delta y_k + B_k \delta v_k,\quad \delta y_0 = 0,\quad \delta v_k =
+        \delta z[\text{index}_k],
+
+    which a Riccati recursion factorises in ``O(N)`` (``solvers/interior_point/riccati.py``). The gradient and the
+    Jacobian come from ``1 + m`` adjoints (``Lambda_N = dG/dy_N``, ``Lambda_k = Lambda_{k+1} A_k``, row ``i`` of
+    ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``), scattered to ``z`` by ``index``: ``O(N n_y (1 + m))`` without the
+    ``n_y x n_z`` forward sensitivities or the ``n_z x n_z`` Hessian. Arguments as :func:`staged_derivatives`.
+    """
+    index = jnp.asarray(index)
+    f, c, g_jac, st = _stages(step, terminal, y0, z, index, lam, objective_weight)
+    _, adj = jax.lax.scan(lambda l_, a_k: (l_ @ a_k, l_), g_jac, st.a, reverse=True)  # adj[k] = Lambda_{k+1}
+    per_step = jnp.einsum("kia,kaq->kiq", adj, st.b)  # (N, 1 + m, q)
+    dz = jnp.zeros((g_jac.shape[0], z.shape[0]), z.dtype).at[:, index].add(jnp.moveaxis(per_step, 1, 0))
+    return f, c, dz[0], dz[1:], st

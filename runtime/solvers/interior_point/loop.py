@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from ...status import Status
-from .kkt import factorize_with_inertia, solve
+from . import kkt
 from .problem import Layout
 from .restoration import Restoration, make_restoration
 from .rules import (
@@ -154,6 +154,9 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
     scale = jnp.asarray(layout.problem.scale)
     mu_min = tol / 10.0
     idle, enter, restoration_step = make_restoration(layout, tol, constr_viol_tol, mu_min)
+    # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
+    factorize_with_inertia, solve = ((layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
+                                     else (kkt.factorize_with_inertia, kkt.solve))
 
     def cold(data: Any, z0: Any) -> WarmStart:
         x0 = layout.start(jnp.asarray(z0) / scale, data)
@@ -191,7 +194,8 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
             row_scale = jnp.where((st.k == 0) & fresh, first_rows, st.row_scale)
             pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
-            finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in (pt.f, pt.grad, pt.g, pt.jac, pt.hess)]))
+            finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(
+                (pt.f, pt.grad, pt.g, pt.jac, pt.hess))]))
             kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
             converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
             stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(

@@ -88,6 +88,7 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     max_iter: int = 3000
     second_order_correction: bool = True
     batch: str = "auto"
+    kkt: str = "auto"
 
     def __post_init__(self):
         if not self.tol > 0 or not self.constr_viol_tol > 0:
@@ -97,6 +98,8 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
             raise ValueError(f"InteriorPoint: max_iter must be a non-negative int, got {self.max_iter!r}")
         if self.batch not in ("auto", "vmap", "map"):
             raise ValueError(f"InteriorPoint: batch must be 'auto', 'vmap' or 'map', got {self.batch!r}")
+        if self.kkt not in ("auto", "dense", "riccati"):
+            raise ValueError(f"InteriorPoint: kkt must be 'auto', 'dense' or 'riccati', got {self.kkt!r}")
 
     # ---- public API --------------------------------------------------------------------------------------------
 
@@ -121,6 +124,12 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         if self.batch != "auto":
             return self.batch
         return "map" if jax.default_backend() == "cpu" else "vmap"
+
+    def kkt_method(self, problem: ScaledProblem) -> str:
+        """The Newton system's method for ``problem``: ``kkt``, with ``"auto"`` resolved (see the class docstring)."""
+        if self.kkt != "auto":
+            return self.kkt
+        return "riccati" if Layout.stagewise(problem) else "dense"
 
     def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
         return self._compiled(nlp).prepare_evaluation(z0, data)
@@ -160,6 +169,7 @@ class _Compiled(ScaledEvaluation):
 
     def __init__(self, problem: ScaledProblem, solver: InteriorPoint):
         super().__init__(problem)
-        loop, self.cold = make_solve_fn(Layout(problem), solver.tol, solver.constr_viol_tol, solver.max_iter,
+        layout = Layout(problem, solver.kkt_method(problem))
+        loop, self.cold = make_solve_fn(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
                                         solver.second_order_correction)
         self.raw = differentiable(loop, problem)
