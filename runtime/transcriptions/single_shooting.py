@@ -193,8 +193,14 @@ class SingleShooting(AbstractTranscription):
             return staged_derivatives(*stage_problem(z, data), z, stage_index, lam, objective_weight)
 
         def stage_derivatives(z, lam, data, objective_weight=1.0):
-            # The same, the Hessian left as its stages (a Riccati Newton step factorises it in O(N)).
-            return staged_stage_derivatives(*stage_problem(z, data), z, stage_index, lam, objective_weight)
+            # The same, the Hessian left as its stages (a Riccati Newton step factorises it in O(N)). The running
+            # cost's state is read by nothing but F, linearly: its rows and columns of every stage's curvature, of
+            # G_yy and of dc/dy_N are zero, so the stages leave it out (exactly) and the recursion works on n states.
+            f, c, grad, jac, st = staged_stage_derivatives(*stage_problem(z, data), z, stage_index, lam,
+                                                           objective_weight)
+            n, keep = system.n_states, np.r_[np.arange(system.n_states), system.n_states + 1 + np.arange(2 * m)]
+            return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=st.w[:, keep][:, :, keep],
+                                                g_yy=st.g_yy[:n, :n], g_c=st.g_c[:, :n])
 
         def stage_problem(z, data):
             n = system.n_states

@@ -68,7 +68,7 @@ def staged_derivatives(
     """
     index = jnp.asarray(index)
     n_z, n_y = z.shape[0], y0.shape[0]
-    f, c, g_jac, st = _stages(step, terminal, y0, z, index, lam, objective_weight)
+    f, c, (g_jac, _), st = _stages(step, terminal, y0, z, index, lam, objective_weight)
     a, b, w = st.a, st.b, st.w
     w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
     _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), st.g_yy, (a, w_yy),
@@ -88,7 +88,8 @@ def staged_derivatives(
 
 
 def _stages(step, terminal, y0, z, index, lam, objective_weight):
-    """``(F, c, dG/dy_N (1 + m, n_y), Stages)``: the rollout, the steps' Jacobians, the adjoint and the curvature."""
+    """``(F, c, (dG/dy_N (1 + m, n_y), the adjoints (N, 1 + m, n_y)), Stages)``: the rollout, the steps' Jacobians,
+    the adjoints and the curvature."""
     n_steps, n_y = index.shape[0], y0.shape[0]
     ks = jnp.arange(n_steps, dtype=jnp.int32)
     v = z[index]
@@ -108,13 +109,16 @@ def _stages(step, terminal, y0, z, index, lam, objective_weight):
     values = stacked(y_n)
     g_jac = jax.jacfwd(stacked)(y_n)  # (1 + m, n_y)
     g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
-    _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), weights @ g_jac, a, reverse=True)  # mu[k] = mu_{k+1}
+    # The adjoints of F and of each row (adj[k] = Lambda_{k+1}, Lambda_k = Lambda_{k+1} A_k) in one pass: the
+    # Lagrangian's adjoint mu is their weighted sum, and they give the gradient and the Jacobian.
+    _, adj = jax.lax.scan(lambda l_, a_k: (l_ @ a_k, l_), g_jac, a, reverse=True)
+    mu = jnp.einsum("i,kia->ka", weights, adj)  # mu[k] = mu_{k+1}
 
     def curvature(k, y, vk, mu_k):
         return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
 
     w = jax.vmap(curvature)(ks, ys, v, mu)
-    return values[0], values[1:], g_jac, Stages(a, b, w, g_yy, g_jac[1:])
+    return values[0], values[1:], (g_jac, adj), Stages(a, b, w, g_yy, g_jac[1:])
 
 
 def stage_derivatives(
@@ -142,8 +146,7 @@ def stage_derivatives(
     ``n_y x n_z`` forward sensitivities or the ``n_z x n_z`` Hessian. Arguments as :func:`staged_derivatives`.
     """
     index = jnp.asarray(index)
-    f, c, g_jac, st = _stages(step, terminal, y0, z, index, lam, objective_weight)
-    _, adj = jax.lax.scan(lambda l_, a_k: (l_ @ a_k, l_), g_jac, st.a, reverse=True)  # adj[k] = Lambda_{k+1}
+    f, c, (g_jac, adj), st = _stages(step, terminal, y0, z, index, lam, objective_weight)
     per_step = jnp.einsum("kia,kaq->kiq", adj, st.b)  # (N, 1 + m, q)
     dz = jnp.zeros((g_jac.shape[0], z.shape[0]), z.dtype).at[:, index].add(jnp.moveaxis(per_step, 1, 0))
     return f, c, dz[0], dz[1:], st

@@ -246,15 +246,16 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                     x_t, lam_t = x + alpha * dx, lam + alpha * dlam
                     if second_order_correction:
                         # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
-                        # taken only when the full step did not reduce the infeasibility. A cond, not a select: the
-                        # correction's two solves would otherwise be paid on every trial of a long line search.
-                        def corrected(_):
-                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
+                        # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
+                        # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
+                        # every trial of every member; a loop runs only while some member needs it.
+                        def corrected(c):
+                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]))
                             a_c = bounds.step_to_boundary(x, dx_c, tau)
-                            return x + a_c * dx_c, lam + a_c * dlam_c
+                            return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
 
                         use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
-                        x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
+                        _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
                     f_t, g_t = layout.values(x_t, data, sigma, row_scale)
                     theta_t = jnp.sum(jnp.abs(g_t))
                     ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,

@@ -50,6 +50,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from . import blocks as bl
+from .blocks import cho_solve_array as _cho_solve
+from .blocks import cholesky_array as _cholesky
 from .rules import (
     DELTA_C_BAR,
     DELTA_C_EXPONENT,
@@ -61,9 +64,6 @@ from .rules import (
 )
 
 __all__ = ["StageHessian", "Riccati", "chain"]
-
-SMALL = 8  # matrices up to this size are factorised unrolled (elementwise); larger ones by LAPACK
-
 
 class StageHessian(NamedTuple):
     """The scaled barrier problem's Hessian ``H`` (of ``sigma F + lambda^T g`` in ``x = (w, s)``), as stages."""
@@ -98,61 +98,15 @@ def chain(index: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return carry, new, sel
 
 
-# ---- small dense linear algebra, batched over leading axes, unrolled over the (static, small) sizes ------------
-
-
-def _mm(a, b):
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
-
-
-def _t(a):
-    return jnp.swapaxes(a, -1, -2)
-
-
-def _cholesky(a):
-    """``(lower factor, positive definite)`` of the symmetric ``a`` (..., k, k); a failed factor holds junk."""
-    k = a.shape[-1]
-    if k > SMALL:
-        chol = jnp.linalg.cholesky(0.5 * (a + _t(a)))
-        return chol, jnp.all(jnp.isfinite(chol), axis=(-2, -1))
-    ok = jnp.ones(a.shape[:-2], bool)
-    cols = [[None] * k for _ in range(k)]
-    for j in range(k):
-        d2 = a[..., j, j] - sum((cols[j][p] ** 2 for p in range(j)), jnp.zeros_like(a[..., j, j]))
-        ok = ok & (d2 > 0)  # False for NaN too
-        d = jnp.sqrt(jnp.where(d2 > 0, d2, 1.0))
-        cols[j][j] = d
-        for i in range(j + 1, k):
-            cols[i][j] = (0.5 * (a[..., i, j] + a[..., j, i])
-                          - sum((cols[i][p] * cols[j][p] for p in range(j)), jnp.zeros_like(d))) / d
-    zero = jnp.zeros(a.shape[:-2], a.dtype)
-    rows = [jnp.stack([cols[i][j] if j <= i else zero for j in range(k)], axis=-1) for i in range(k)]
-    return (jnp.stack(rows, axis=-2) if k else a), ok
-
-
-def _cho_solve(chol, b):
-    """``(L L^T)^{-1} b`` for ``b`` (..., k, r)."""
-    k = chol.shape[-1]
-    if k > SMALL:
-        return jax.scipy.linalg.cho_solve((chol, True), b)
-    y = []
-    for i in range(k):
-        y.append((b[..., i, :] - sum((chol[..., i, p, None] * y[p] for p in range(i)), 0.0)) / chol[..., i, i, None])
-    x = [None] * k
-    for i in reversed(range(k)):
-        x[i] = (y[i] - sum((chol[..., p, i, None] * x[p] for p in range(i + 1, k)), 0.0)) / chol[..., i, i, None]
-    return jnp.stack(x, axis=-2) if k else b
-
-
 class Factors(NamedTuple):
     """``H_rho`` factorised stage-wise, and what :meth:`Riccati.solve` needs besides."""
 
     hess: StageHessian
     d: jax.Array  # (n_x,) Sigma + delta_w
-    at: jax.Array  # (N, nX, nX) the augmented stage Jacobians
-    bt: jax.Array  # (N, nX, nu)
-    gain: jax.Array  # (N, nu, nX) K_k
-    chol_r: jax.Array  # (N, nu, nu)
+    at: list  # the augmented stage Jacobians' rows for y (blocks.py: entries (N,)), (n_y, nX); the rows for the
+    bt: list  # carried decisions are static selections. (n_y, nu)
+    gain: list  # (nu, nX) K_k
+    chol_r: list  # (nu, nu) lower triangles of R_k's factors
     chol_0: jax.Array  # (c, c) the initial block's factor
     p0_w: jax.Array  # (c, nX) rows of P_0 for the initial block
     chol_t: jax.Array  # (n_s, n_s) T's factor
@@ -184,19 +138,21 @@ class Riccati:
     # ---- the stages --------------------------------------------------------------------------------------------
 
     def _stages(self, h: StageHessian):
-        """``(A~, B~, Q^xx, Q^ux, Q^uu)`` of the augmented stages ``X_k = (y_k, w_k)``, ``U_k``."""
-        n_steps, n_y = h.a.shape[0], h.a.shape[1]
-        c, dtype = self.c, h.a.dtype
-        b_c, b_n = h.b[:, :, self.carry], h.b[:, :, self.new]
-        top = jnp.concatenate([h.a, b_c], axis=2)
-        bottom = jnp.broadcast_to(jnp.concatenate([jnp.zeros((c, n_y), dtype), jnp.asarray(self.select_c, dtype)],
-                                                  axis=1), (n_steps, c, n_y + c))
-        at = jnp.concatenate([top, bottom], axis=1)
-        bt = jnp.concatenate([b_n, jnp.broadcast_to(jnp.asarray(self.select_n, dtype), (n_steps, c, self.nu))], axis=1)
+        """``(A~, B~)``'s rows for ``y`` and ``(Q^xx, Q^ux, Q^uu)`` of the augmented stages ``X_k = (y_k, w_k)``,
+        ``U_k``, as blocks (entries of shape (N,))."""
+        n_y = h.a.shape[1]
         order = np.concatenate([np.arange(n_y), n_y + self.carry, n_y + self.new])
         w = h.w[:, order][:, :, order]
-        nx = n_y + c
-        return at, bt, w[:, :nx, :nx], w[:, nx:, :nx], w[:, nx:, nx:]
+        nx = n_y + self.c
+        return (bl.blocks(jnp.concatenate([h.a, h.b[:, :, self.carry]], axis=2)), bl.blocks(h.b[:, :, self.new]),
+                bl.blocks(w[:, :nx, :nx]), bl.blocks(w[:, nx:, :nx]), bl.blocks(w[:, nx:, nx:]))
+
+    def _full(self, a_top, b_top):
+        """A stage's ``A~`` and ``B~``: the rows for y, then the carried decisions' static selections."""
+        n_y = len(a_top[0]) - self.c
+        a_rows = [[0.0] * n_y + [float(e) for e in row] for row in self.select_c]
+        b_rows = [[float(e) for e in row] for row in self.select_n]
+        return a_top + a_rows, b_top + b_rows
 
     def _terminal(self, h: StageHessian, d, jac, weights):
         """``(P_N^yy, chol T, C, ok)`` after the slacks' elimination."""
@@ -213,23 +169,35 @@ class Riccati:
     def factor(self, h: StageHessian, d, jac, weights) -> tuple[Factors, jax.Array]:
         """``H + diag(d) + A^T diag(weights) A`` factorised, and whether it is positive definite."""
         at, bt, qxx, qux, quu = self._stages(h)
-        n_y, c, dtype = h.a.shape[1], self.c, h.a.dtype
+        n_y, c, nu, dtype = h.a.shape[1], self.c, self.nu, h.a.dtype
         p_yy, chol_t, cross, ok_t = self._terminal(h, d, jac, weights)
         p_n = jnp.zeros((n_y + c, n_y + c), dtype).at[:n_y, :n_y].set(p_yy)
         d_u = d[self.later]  # (N, nu)
 
-        def backward(p, inp):
-            a_k, b_k, qxx_k, qux_k, quu_k, du_k = inp
-            pa, pb = _mm(p, a_k), _mm(p, b_k)
-            r = quu_k + _mm(_t(b_k), pb) + jnp.diag(du_k)
-            s = qux_k + _mm(_t(b_k), pa)
-            chol, ok = _cholesky(r)
-            gain = -_cho_solve(chol, s)
-            p_new = qxx_k + _mm(_t(a_k), pa) + _mm(_t(s), gain)
-            return 0.5 * (p_new + _t(p_new)), (gain, chol, ok)
+        inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)])
+        p_like = bl.blocks(p_n)
 
-        p0, (gain, chol_r, ok_r) = jax.lax.scan(backward, p_n, (at, bt, qxx, qux, quu, d_u), reverse=True)
-        p0_w = p0[n_y:]
+        # Packed: one buffer in, one carried, one out per step (each leaf is a kernel of its own on the CPU).
+        def backward(p, inp):
+            p = bl.unpack(p, p_like)
+            a_top, b_top, qxx_k, qux_k, quu_k, du_k = bl.unpack(inp, inputs)
+            a_k, b_k = self._full(a_top, b_top)
+            pa, pb = bl.mm(p, a_k), bl.mm(p, b_k)
+            r = bl.add(quu_k, bl.mm(bl.tr(b_k), pb))
+            r = [[x + du_k[i] if i == j else x for j, x in enumerate(row)] for i, row in enumerate(r)]
+            s = bl.add(qux_k, bl.mm(bl.tr(b_k), pa))
+            low, ok = bl.cholesky(r, du_k[0])
+            gain = bl.scale(-1.0, bl.cho_solve(low, s))
+            p_new = bl.add(qxx_k, bl.mm(bl.tr(a_k), pa), bl.mm(bl.tr(s), gain))
+            p_new = [[0.5 * (p_new[i][j] + p_new[j][i]) for j in range(len(p_new))] for i in range(len(p_new))]
+            out = (gain, [row[:i + 1] for i, row in enumerate(low)], jnp.where(ok, 1.0, 0.0))
+            return bl.pack(p_new), bl.pack(out)
+
+        p0, packed = jax.lax.scan(backward, bl.pack(p_like), bl.pack(inputs), reverse=True)
+        p0 = bl.unpack(p0, p_like)
+        gain, chol_r, ok_r = bl.unpack(packed, ([["x"] * (n_y + c)] * nu, [["x"] * (i + 1) for i in range(nu)], "x"))
+        ok_r = ok_r > 0.5
+        p0_w = bl.array(p0, d_u[:, 0][0])[n_y:]
         chol_0, ok_0 = _cholesky(p0_w[:, n_y:] + jnp.diag(d[self.first]))
         zeros = jnp.zeros((), dtype)
         f = Factors(h, d, at, bt, gain, chol_r, chol_0, p0_w, chol_t, cross, jnp.zeros((jac.shape[1], 0), dtype),
@@ -240,32 +208,38 @@ class Riccati:
         """``H_rho^{-1} r`` for ``r`` (n_x,) or (n_x, k): one backward pass for the linear terms, one forward."""
         vector = r.ndim == 1
         r = r[:, None] if vector else r
-        n, n_y = self.n, f.hess.a.shape[1]
+        n, n_y, k = self.n, f.hess.a.shape[1], r.shape[1]
         r_w, r_s = r[:n], r[n:]
         p_s = _cho_solve(f.chol_t, r_s) if self.n_s else r_s  # T^{-1} r_s
-        p_n = jnp.zeros((n_y + self.c, r.shape[1]), r.dtype).at[:n_y].set(f.cross @ p_s)
-        r_u = r_w[self.later]  # (N, nu, k)
+        p_n = jnp.zeros((n_y + self.c, k), r.dtype).at[:n_y].set(f.cross @ p_s)
+        r_u = bl.blocks(r_w[self.later])  # (nu, k) blocks of (N,)
+        full_low = lambda low: [row + [0.0] * (len(low) - len(row)) for row in low]  # noqa: E731
 
         def backward(p, inp):
-            a_k, b_k, gain, chol, ru = inp
-            h = _mm(_t(b_k), p) - ru
-            ff = -_cho_solve(chol, h)
-            return _mm(_t(a_k), p) + _mm(_t(gain), h), ff
+            a_top, b_top, gain, low, ru = inp
+            a_k, b_k = self._full(a_top, b_top)
+            hh = bl.add(bl.mm(bl.tr(b_k), p), bl.scale(-1.0, ru))
+            ff = bl.scale(-1.0, bl.cho_solve(full_low(low), hh))
+            return bl.add(bl.mm(bl.tr(a_k), p), bl.mm(bl.tr(gain), hh)), ff
 
-        p0, ff = jax.lax.scan(backward, p_n, (f.at, f.bt, f.gain, f.chol_r, r_u), reverse=True)
+        p0, ff = jax.lax.scan(backward, bl.blocks(p_n), (f.at, f.bt, f.gain, f.chol_r, r_u), reverse=True)
+        p0 = bl.array(p0, r[0, 0])
         w0 = -_cho_solve(f.chol_0, p0[n_y:] - r_w[self.first])
-        x0 = jnp.concatenate([jnp.zeros((n_y, r.shape[1]), r.dtype), w0])
+        x0 = jnp.concatenate([jnp.zeros((n_y, k), r.dtype), w0])
 
         def forward(x, inp):
-            a_k, b_k, gain, ff_k = inp
-            u = _mm(gain, x) + ff_k
-            return _mm(a_k, x) + _mm(b_k, u), u
+            a_top, b_top, gain, ff_k = inp
+            a_k, b_k = self._full(a_top, b_top)
+            u = bl.add(bl.mm(gain, x), ff_k)
+            return bl.add(bl.mm(a_k, x), bl.mm(b_k, u)), u
 
-        x_n, u = jax.lax.scan(forward, x0, (f.at, f.bt, f.gain, ff))
+        x_n, u = jax.lax.scan(forward, bl.blocks(x0), (f.at, f.bt, f.gain, ff))
+        u = bl.array(u, r_w[self.later][:, 0, 0])  # (N, nu, k)
         dw = jnp.zeros_like(r_w).at[self.first].set(w0).at[self.later].set(u)
         out = dw
         if self.n_s:
-            out = jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - f.cross.T @ x_n[:n_y])])
+            y_n = bl.array(x_n, r[0, 0])[:n_y]
+            out = jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - f.cross.T @ y_n)])
         return out[:, 0] if vector else out
 
     def hvp(self, h: StageHessian, v):
