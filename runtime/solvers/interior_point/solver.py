@@ -111,6 +111,11 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         return self._compiled(nlp).raw
 
+    def pure_solve_batch(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
+        """The batch's solve: with ``kkt="auto"``, stage-wise (Riccati) when the batch is vmapped and the NLP
+        allows it (see the class docstring)."""
+        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").raw
+
     def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
         """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``: what
         :meth:`pure_solve` does with an array ``z0``, as a start that a ``jnp.where`` can choose against the
@@ -120,16 +125,22 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
         return initial_point(nlp, data, z0)
 
-    def batch_strategy(self) -> str:
+    def batch_strategy(self, problem: Any = None) -> str:
+        """``batch``, with ``"auto"`` resolved: vmap on an accelerator; on a CPU, vmap where the Newton step can be
+        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it) and map otherwise (measured: the
+        class docstring)."""
         if self.batch != "auto":
             return self.batch
-        return "map" if jax.default_backend() == "cpu" else "vmap"
+        if jax.default_backend() != "cpu":
+            return "vmap"
+        return "vmap" if problem is not None and self.kkt != "dense" and _stagewise(problem) else "map"
 
-    def kkt_method(self, problem: ScaledProblem) -> str:
-        """The Newton system's method for ``problem``: ``kkt``, with ``"auto"`` resolved (see the class docstring)."""
+    def kkt_method(self, nlp: NLP, vmapped: bool = False) -> str:
+        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: stage-wise (Riccati) for a
+        vmapped batch of an NLP that allows it, dense otherwise (see the class docstring)."""
         if self.kkt != "auto":
             return self.kkt
-        return "riccati" if Layout.stagewise(problem) else "dense"
+        return "riccati" if vmapped and _stagewise(nlp) else "dense"
 
     def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
         return self._compiled(nlp).prepare_evaluation(z0, data)
@@ -160,16 +171,24 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
 
     # ---- implementation ----------------------------------------------------------------------------------------
 
-    def _compiled(self, nlp: NLP) -> _Compiled:
-        return cached(nlp, ("interior_point", self), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self))
+    def _compiled(self, nlp: NLP, vmapped: bool = False) -> _Compiled:
+        method = self.kkt_method(nlp, vmapped)
+        return cached(nlp, ("interior_point", self, method), lambda: _Compiled(ScaledProblem.from_nlp(nlp), self,
+                                                                              method))
+
+
+def _stagewise(nlp: NLP) -> bool:
+    """Whether the stage-wise Newton step applies to ``nlp`` (:meth:`.problem.Layout.stagewise`), once per NLP."""
+    return isinstance(nlp, NLP) and cached(nlp, ("interior_point", "stagewise"),
+                                           lambda: Layout.stagewise(ScaledProblem.from_nlp(nlp)))
 
 
 class _Compiled(ScaledEvaluation):
     """The pure (differentiable) solve and the report's objective and constraints, for one NLP and configuration."""
 
-    def __init__(self, problem: ScaledProblem, solver: InteriorPoint):
+    def __init__(self, problem: ScaledProblem, solver: InteriorPoint, method: str):
         super().__init__(problem)
-        layout = Layout(problem, solver.kkt_method(problem))
+        layout = Layout(problem, method)
         loop, self.cold = make_solve_fn(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
                                         solver.second_order_correction)
         self.raw = differentiable(loop, problem)
