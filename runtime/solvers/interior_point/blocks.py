@@ -7,8 +7,11 @@ member), so that under ``vmap`` each entry is one contiguous ``(B,)`` vector and
 hundred elementwise vector operations, which XLA fuses. Entries may also be the Python floats ``0.0`` and ``1.0``
 (the carried decisions' selection matrices): products with them are skipped or elided when the program is traced.
 
-Measured on the 2-core CPU (Mould Fungicide, 1024 members vmapped, one factorisation with its Schur complement):
-98.7 ms with ``(B, k, k)`` arrays and batched ``einsum``-free broadcasting products, XX ms with these lists.
+Measured on the 2-core CPU (Mould Fungicide, 1024 members vmapped, one inertia-certified factorisation with its
+Schur complement, ``python``-level timing of the jitted call, busy machine): 98.7 ms with ``(B, k, k)`` arrays and
+broadcast products, 35.9 ms with these lists (packing each step's inputs and outputs into one buffer, to save
+kernels, measured 52 ms: the strided reads cost more). It is still ~250 ns per member and stage for ~100 flops:
+XLA:CPU fuses each of a step's outputs with the whole expression behind it, recomputing shared products.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["blocks", "array", "pack", "unpack", "mm", "tr", "add", "scale", "cholesky", "cho_solve", "cholesky_array",
+__all__ = ["blocks", "array", "mm", "tr", "add", "scale", "cholesky", "cho_solve", "cholesky_array",
            "cho_solve_array"]
 
 SMALL = 8  # arrays up to this size are factorised unrolled (elementwise); larger ones by LAPACK
@@ -55,25 +58,6 @@ def array(m: list, like) -> jax.Array:
         return jnp.full(jnp.shape(like), x, like.dtype) if isinstance(x, float) else x
 
     return jnp.stack([jnp.stack([entry(x) for x in row], axis=-1) for row in m], axis=-2)
-
-
-def pack(tree) -> jax.Array:
-    """The arrays of a nested list (Python floats dropped: they are static) stacked along a last axis: one array,
-    so that a loop's step reads and writes one buffer instead of one per entry (XLA:CPU runs a kernel for each)."""
-    return jnp.stack([x for x in jax.tree.leaves(tree) if not isinstance(x, float)], axis=-1)
-
-
-def unpack(packed: jax.Array, like):
-    """The nested list ``like`` (shapes only; its Python floats kept) filled from :func:`pack`'s last axis."""
-    leaves, treedef = jax.tree.flatten(like)
-    out, i = [], 0
-    for x in leaves:
-        if isinstance(x, float):
-            out.append(x)
-        else:
-            out.append(packed[..., i])
-            i += 1
-    return jax.tree.unflatten(treedef, out)
 
 
 def mm(a: list, b: list) -> list:

@@ -174,13 +174,8 @@ class Riccati:
         p_n = jnp.zeros((n_y + c, n_y + c), dtype).at[:n_y, :n_y].set(p_yy)
         d_u = d[self.later]  # (N, nu)
 
-        inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)])
-        p_like = bl.blocks(p_n)
-
-        # Packed: one buffer in, one carried, one out per step (each leaf is a kernel of its own on the CPU).
         def backward(p, inp):
-            p = bl.unpack(p, p_like)
-            a_top, b_top, qxx_k, qux_k, quu_k, du_k = bl.unpack(inp, inputs)
+            a_top, b_top, qxx_k, qux_k, quu_k, du_k = inp
             a_k, b_k = self._full(a_top, b_top)
             pa, pb = bl.mm(p, a_k), bl.mm(p, b_k)
             r = bl.add(quu_k, bl.mm(bl.tr(b_k), pb))
@@ -190,13 +185,10 @@ class Riccati:
             gain = bl.scale(-1.0, bl.cho_solve(low, s))
             p_new = bl.add(qxx_k, bl.mm(bl.tr(a_k), pa), bl.mm(bl.tr(s), gain))
             p_new = [[0.5 * (p_new[i][j] + p_new[j][i]) for j in range(len(p_new))] for i in range(len(p_new))]
-            out = (gain, [row[:i + 1] for i, row in enumerate(low)], jnp.where(ok, 1.0, 0.0))
-            return bl.pack(p_new), bl.pack(out)
+            return p_new, (gain, [row[:i + 1] for i, row in enumerate(low)], ok)
 
-        p0, packed = jax.lax.scan(backward, bl.pack(p_like), bl.pack(inputs), reverse=True)
-        p0 = bl.unpack(p0, p_like)
-        gain, chol_r, ok_r = bl.unpack(packed, ([["x"] * (n_y + c)] * nu, [["x"] * (i + 1) for i in range(nu)], "x"))
-        ok_r = ok_r > 0.5
+        inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)])
+        p0, (gain, chol_r, ok_r) = jax.lax.scan(backward, bl.blocks(p_n), inputs, reverse=True)
         p0_w = bl.array(p0, d_u[:, 0][0])[n_y:]
         chol_0, ok_0 = _cholesky(p0_w[:, n_y:] + jnp.diag(d[self.first]))
         zeros = jnp.zeros((), dtype)
