@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from myriad.runtime import load, solve
+from myriad.runtime import load, solve, solve_batch
 from myriad.runtime.data import default_data
 from myriad.runtime.integrators import Heun
 from myriad.runtime.solvers import InteriorPoint, Ipopt
@@ -157,19 +157,30 @@ def test_real_points_against_the_dense_path(name):
     np.testing.assert_allclose(step_s, step_d, rtol=1e-10, atol=1e-10 * np.abs(step_d).max())
 
 
-def test_a_solve_agrees_with_ipopt():
-    """End to end (the loop, the line search's second-order correction): van der Pol's published NLP."""
+def test_a_vmapped_batch_agrees_with_ipopt():
+    """End to end (the loop, restoration-free here, the line search's second-order correction): ``solve_batch``'s
+    default on a CPU vmaps the stage-wise solve; each member as IPOPT solves it."""
     system, transcription = load("van_der_pol"), SingleShooting(controls=100, integrator=Heun())
-    ric = solve(system, transcription, InteriorPoint(kkt="riccati"), resimulate=False)
-    ref = solve(system, transcription, Ipopt(), resimulate=False)
-    assert ric.converged and ref.converged and ric.iterations <= 2 * ref.iterations
-    assert abs(ric.cost - ref.cost) <= 1e-8 * abs(ref.cost)
+    solver = InteriorPoint()
+    nlp = transcribe(system, transcription)
+    assert solver.kkt_method(nlp, vmapped=True) == "riccati" and solver.kkt_method(nlp) == "dense"
+    if jax.default_backend() == "cpu":
+        assert solver.batch_strategy(nlp) == "vmap" and InteriorPoint(kkt="dense").batch_strategy(nlp) == "map"
+    x0 = np.asarray(system.arrays()["x0"], float)[None, :] * np.array([[1.0], [1.05]])
+    batch = solve_batch(system, transcription, solver, x0=x0)
+    for member, x in zip(batch, x0):
+        ref = solve(system, transcription, Ipopt(), x0=x, resimulate=False)
+        assert member.converged and ref.converged and member.iterations <= 2 * ref.iterations
+        assert abs(member.cost - ref.cost) <= 1e-8 * abs(ref.cost)
 
 
 def test_kkt_riccati_refuses_an_nlp_without_stages():
     from myriad.runtime import Trapezoidal
 
-    problem = ScaledProblem.from_nlp(transcribe(load("van_der_pol"), Trapezoidal(intervals=10)))
+    nlp = transcribe(load("van_der_pol"), Trapezoidal(intervals=10))
+    problem = ScaledProblem.from_nlp(nlp)
     with pytest.raises(ValueError, match="stage-wise"):
         Layout(problem, "riccati")
-    assert not Layout.stagewise(problem)
+    assert not Layout.stagewise(problem) and InteriorPoint().kkt_method(nlp, vmapped=True) == "dense"
+    if jax.default_backend() == "cpu":
+        assert InteriorPoint().batch_strategy(nlp) == "map"
