@@ -7,11 +7,12 @@ member), so that under ``vmap`` each entry is one contiguous ``(B,)`` vector and
 hundred elementwise vector operations, which XLA fuses. Entries may also be the Python floats ``0.0`` and ``1.0``
 (the carried decisions' selection matrices): products with them are skipped or elided when the program is traced.
 
-Measured on the 2-core CPU (Mould Fungicide, 1024 members vmapped, one inertia-certified factorisation with its
-Schur complement, ``python``-level timing of the jitted call, busy machine): 98.7 ms with ``(B, k, k)`` arrays and
-broadcast products, 35.9 ms with these lists (packing each step's inputs and outputs into one buffer, to save
-kernels, measured 52 ms: the strided reads cost more). It is still ~250 ns per member and stage for ~100 flops:
-XLA:CPU fuses each of a step's outputs with the whole expression behind it, recomputing shared products.
+Measured on the 2-core CPU (Mould Fungicide's published NLP, 1024 members vmapped, one inertia-certified
+factorisation with its Schur complement, jitted, min of 5): under a parallel job (load ~3) 98.7 ms with ``(B, k, k)``
+arrays and broadcast products against 35.9 ms with these lists (packing each step's inputs and outputs into one
+buffer, to save kernels, measured 52 ms: the strided reads cost more); quiet (load ~1), 7.3 ms with these lists. The
+backward pass alone on random stages of that size (``n_y + c = 3``) costs 75-110 ns a member and stage for ~100
+flops: XLA:CPU fuses each output of a scan step with the expression behind it and recomputes shared products.
 """
 
 from __future__ import annotations
