@@ -2,9 +2,10 @@
 (``solve_batch`` with a pure-JAX solver) against one-at-a-time solves by myriad's IPOPT and by CasADi + IPOPT, all in
 the same run. Prints figures only.
 
-``solve_batch`` runs the batch as the solver's ``batch_strategy()`` says: InteriorPoint maps over the members
-(``jax.lax.map``, one after another in one program) on a CPU and vmaps them on an accelerator; ``--compare`` adds a
-row with its other strategy, so what vectorising gains on this device is measured, not assumed.
+``solve_batch`` runs the batch as the solver's ``batch_strategy(nlp)`` says: InteriorPoint vmaps the members with
+its stage-wise (Riccati) Newton step where the NLP allows one (single shooting here) and otherwise maps over them
+(``jax.lax.map``, one after another in one program, dense Newton steps) on a CPU, and vmaps them on an accelerator;
+``--compare`` adds a row with its other strategy, so what vectorising gains on this device is measured, not assumed.
 
 The NLP is the published setting by default (single shooting, Heun, 100 control intervals), the one
 ``bench/casadi_peer.py`` builds in CasADi, so the CasADi row solves the same problems (parameters and x0 are nlpsol
@@ -143,18 +144,22 @@ def run_system(name, args) -> dict:
     t0 = time.perf_counter()
     batch = solve_batch(system, tr, solver, params=params, x0=x0)
     wall_b = time.perf_counter() - t0
-    main_row = f"{args.solver}, solve_batch ({solver.batch_strategy()})"
+    from myriad.runtime.solve import transcribe
+
+    nlp = transcribe(system, tr)
+    strategy = solver.batch_strategy(nlp)
+    main_row = f"{args.solver}, solve_batch ({strategy})"
     rows = {main_row: {
         "costs": [s.cost for s in batch], "converged": [s.converged for s in batch], "compile_seconds": compile_b,
         "seconds": wall_b, "n": args.batch}}
     if args.compare and hasattr(solver, "batch"):
-        other = dataclasses.replace(solver, batch="vmap" if solver.batch_strategy() == "map" else "map")
+        other = dataclasses.replace(solver, batch="vmap" if strategy == "map" else "map")
         t0 = time.perf_counter()
         solve_batch(system, tr, other, params=warm_p, x0=warm_x)
         compile_o = time.perf_counter() - t0
         t0 = time.perf_counter()
         batch_o = solve_batch(system, tr, other, params=params, x0=x0)
-        rows[f"{args.solver}, solve_batch ({other.batch_strategy()})"] = {
+        rows[f"{args.solver}, solve_batch ({other.batch_strategy(nlp)})"] = {
             "costs": [s.cost for s in batch_o], "converged": [s.converged for s in batch_o],
             "compile_seconds": compile_o, "seconds": time.perf_counter() - t0, "n": args.batch}
     rows["ipopt (cyipopt), one at a time"] = {**one_at_a_time(system, tr, Ipopt(), params, x0, subset), "n": subset}

@@ -48,6 +48,9 @@ class NLP:
             second-order solvers' derivatives by the transcription's own structure (single shooting: stage by stage,
             :mod:`~myriad.runtime.transcriptions.staged`). Must agree with differentiating ``evaluate``; solvers
             fall back to that (forward over reverse) without it.
+        stage_derivatives, stage_index: optional, with ``lagrangian_derivatives``: the same derivatives with the
+            Hessian left as the rollout's stages (:class:`~myriad.runtime.transcriptions.staged.Stages`), step ``k``
+            reading the decisions ``z[stage_index[k]]``; for a stage-wise (Riccati) Newton step.
         key: what the functions depend on, as text (a spec-generated system's source and a transcription's
             configuration; :func:`~myriad.runtime.transcriptions.transcribe` sets it), so that their traced
             programs may be kept on disk for later processes (:mod:`myriad.runtime.programs`); None: never kept.
@@ -66,6 +69,8 @@ class NLP:
     name: str = "nlp"
     objective_and_constraints: Callable[[Any, Data], tuple[Any, Any]] | None = None
     lagrangian_derivatives: Callable[[Any, Any, Data], tuple[Any, Any, Any, Any, Any]] | None = None
+    stage_derivatives: Callable[[Any, Any, Data], tuple[Any, Any, Any, Any, Any]] | None = None
+    stage_index: np.ndarray | None = None
     key: str | None = None
 
     def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:

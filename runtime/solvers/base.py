@@ -148,6 +148,10 @@ class ScaledProblem:
     # (w, lam, data, objective_weight=1) -> (F, c, dF/dw, dc/dw, Hessian of the Lagrangian in w):
     # NLP.lagrangian_derivatives, or None.
     derivatives: Callable[[Any, Any, Any], tuple] | None = None
+    # The same with the Hessian as the rollout's stages (NLP.stage_derivatives, in w), step k reading
+    # w[stage_index[k]]; or None.
+    stages: Callable[[Any, Any, Any], tuple] | None = None
+    stage_index: np.ndarray | None = None
 
     @classmethod
     def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
@@ -175,6 +179,9 @@ class ScaledProblem:
             key=nlp.key,
             derivatives=None if nlp.lagrangian_derivatives is None else _scaled_derivatives(
                 nlp.lagrangian_derivatives, s),
+            stages=None if nlp.stage_derivatives is None else _scaled_stages(nlp.stage_derivatives, s,
+                                                                             nlp.stage_index),
+            stage_index=None if nlp.stage_derivatives is None else np.asarray(nlp.stage_index),
         )
 
     @property
@@ -197,6 +204,22 @@ def _scaled_derivatives(derivatives: Callable, s: Any) -> Callable:
     def scaled(w, lam, data, objective_weight=1.0, hessian=True):
         f, c, grad, jac, hess = derivatives(w * s, lam, data, objective_weight, hessian)
         return f, c, grad * s, jac * s, hess * s[:, None] * s[None, :]
+
+    return scaled
+
+
+def _scaled_stages(derivatives: Callable, s: Any, index: np.ndarray) -> Callable:
+    """An NLP's ``stage_derivatives`` in ``w = z / s``: step k's ``dv`` is ``s[index_k] dw``, so ``B_k`` and the
+    ``v`` rows and columns of ``W_k`` take the factors (the state's rows are not decisions)."""
+    index = np.asarray(index)
+
+    def scaled(w, lam, data, objective_weight=1.0):
+        f, c, grad, jac, st = derivatives(w * s, lam, data, objective_weight)
+        sv = s[index]  # (N, q)
+        n_y = st.a.shape[-1]
+        full = jnp.concatenate([jnp.ones((sv.shape[0], n_y), sv.dtype), sv], axis=1)
+        return f, c, grad * s, jac * s, st._replace(b=st.b * sv[:, None, :],
+                                                     w=st.w * full[:, :, None] * full[:, None, :])
 
     return scaled
 

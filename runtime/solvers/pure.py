@@ -57,11 +57,13 @@ class _Programs:
     """The jitted solve of one (problem, solver) pair: for callers, for one member, and for a batch (vmapped, or
     mapped: ``strategy``)."""
 
-    def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap"):
+    def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap",
+                 raw_batch: Callable[[Any, Any], Any] | None = None):
         self.jitted = jax.jit(raw)
         self.single = CompiledFunction(raw, program_key(key, "single"))
-        batched = jax.vmap(raw) if strategy == "vmap" else (
-            lambda data, z0: jax.lax.map(lambda member: raw(*member), (data, z0)))
+        member = raw if raw_batch is None else raw_batch
+        batched = jax.vmap(member) if strategy == "vmap" else (
+            lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0)))
         self.batched = CompiledFunction(batched, program_key(key, f"batched:{strategy}"))
 
 
@@ -96,10 +98,16 @@ class AbstractPureSolver(abc.ABC):
         """Compile what :meth:`report` evaluates; returns the seconds spent (0 when nothing is compiled)."""
         return 0.0
 
-    def batch_strategy(self) -> str:
+    def batch_strategy(self, problem: Any = None) -> str:
         """How :meth:`solve_batch` runs its members in one program: ``"vmap"`` (the default) or ``"map"`` (in turn,
-        ``jax.lax.map``: for a solver whose members' work does not vectorise on the backend at hand)."""
+        ``jax.lax.map``: for a solver whose members' work does not vectorise on the backend at hand); ``problem``
+        (when given) lets the answer depend on what the solver can exploit in it."""
         return "vmap"
+
+    def pure_solve_batch(self, problem: Any) -> Callable[[Any, Any], Any]:
+        """The pure solve that :meth:`solve_batch` maps or vmaps: :meth:`pure_solve`'s unless the solver has a form
+        that suits a batch better (the same results)."""
+        return self.pure_solve(problem)
 
     # ---- written once ------------------------------------------------------------------------------------------
 
@@ -164,6 +172,7 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
-        return cached(problem, ("pure", self, self.batch_strategy()), lambda: _Programs(
+        strategy = self.batch_strategy(problem)
+        return cached(problem, ("pure", self, strategy), lambda: _Programs(
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
-            self.batch_strategy()))
+            strategy, self.pure_solve_batch(problem)))

@@ -23,6 +23,7 @@ from ._common import (
 )
 from .base import AbstractTranscription, sample_final_time
 from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .staged import stage_derivatives as staged_stage_derivatives
 from .staged import staged_derivatives
 
 __all__ = ["SingleShooting"]
@@ -189,6 +190,19 @@ class SingleShooting(AbstractTranscription):
 
         def lagrangian_derivatives(z, lam, data, objective_weight=1.0, hessian=True):
             # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
+            return staged_derivatives(*stage_problem(z, data), z, stage_index, lam, objective_weight, hessian)
+
+        def stage_derivatives(z, lam, data, objective_weight=1.0):
+            # The same, the Hessian left as its stages (a Riccati Newton step factorises it in O(N)). The running
+            # cost's state is read by nothing but F, linearly: its rows and columns of every stage's curvature, of
+            # G_yy and of dc/dy_N are zero, so the stages leave it out (exactly) and the recursion works on n states.
+            f, c, grad, jac, st = staged_stage_derivatives(*stage_problem(z, data), z, stage_index, lam,
+                                                           objective_weight)
+            n, keep = system.n_states, np.r_[np.arange(system.n_states), system.n_states + 1 + np.arange(2 * m)]
+            return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=st.w[:, keep][:, :, keep],
+                                                g_yy=st.g_yy[:n, :n], g_c=st.g_c[:, :n])
+
+        def stage_problem(z, data):
             n = system.n_states
             f_aug = with_running_cost(*fields(data.params), n)  # the field objective_and_constraints integrates
 
@@ -202,7 +216,7 @@ class SingleShooting(AbstractTranscription):
                                                                                       data.params)
 
             y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
-            return staged_derivatives(step, terminal, y0, z, stage_index, lam, objective_weight, hessian)
+            return step, terminal, y0
 
         # Step k reads u_k and u_{k+1}; staged only where nothing else reaches the rows (no path rows, slacks or T).
         stage_index = np.arange(N)[:, None] * m + np.arange(2 * m)[None, :]
@@ -232,6 +246,8 @@ class SingleShooting(AbstractTranscription):
                  f"{f', soft bounds {rho:g}' if nS else ''})",
             objective_and_constraints=objective_and_constraints if n_rows else None,
             lagrangian_derivatives=lagrangian_derivatives if staged else None,
+            stage_derivatives=stage_derivatives if staged else None,
+            stage_index=stage_index if staged else None,
         )
 
     def sample(self, system, states, controls, final_time=None):

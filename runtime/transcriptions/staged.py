@@ -24,12 +24,22 @@ iteration: Rocket Landing's published NLP took 4.9 ms. Here the step's derivativ
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-__all__ = ["staged_derivatives"]
+__all__ = ["Stages", "stage_derivatives", "staged_derivatives"]
+
+
+class Stages(NamedTuple):
+    """The rollout's linearisation and the Lagrangian's curvature, stage by stage (see :func:`stage_derivatives`)."""
+
+    a: Any  # (N, n_y, n_y) A_k = d Phi_k / d y_k
+    b: Any  # (N, n_y, q) B_k = d Phi_k / d v_k
+    w: Any  # (N, n_y + q, n_y + q) W_k, the Hessian of mu_{k+1}^T Phi_k in (y_k, v_k)
+    g_yy: Any  # (n_y, n_y) the Hessian of l^T G at y_N
+    g_c: Any  # (m, n_y) dc/dy_N: the rows' Jacobian is g_c S_N
 
 
 def staged_derivatives(
@@ -60,47 +70,23 @@ def staged_derivatives(
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
     """
     index = jnp.asarray(index)
-    n_steps = index.shape[0]
     n_z, n_y = z.shape[0], y0.shape[0]
-    ks = jnp.arange(n_steps, dtype=jnp.int32)
-    v = z[index]
-
-    def forward(y, inputs):
-        k, vk = inputs
-        return step(k, y, vk), y
-
-    y_n, ys = jax.lax.scan(forward, y0, (ks, v))  # ys[k] = y_k, k < N
-    a, b = jax.vmap(jax.jacfwd(step, argnums=(1, 2)))(ks, ys, v)
-
-    def stacked(y):  # (F, c) as one vector, weighted by l = (objective_weight, lam) in the Lagrangian
-        f_, c_ = terminal(y)
-        return jnp.concatenate([jnp.reshape(f_, (1,)), c_])
-
-    weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, z.dtype), (1,)), lam])
-    values = stacked(y_n)
-    f, c = values[0], values[1:]
-    g_jac = jax.jacfwd(stacked)(y_n)  # (1 + m, n_y)
-    c_in = jax.vmap(lambda b_k, idx: jnp.zeros((n_y, n_z), z.dtype).at[:, idx].add(b_k))(b, index)  # B_k P_k
-    s_n, s = jax.lax.scan(lambda s_, inp: (inp[0] @ s_ + inp[1], s_), jnp.zeros((n_y, n_z), z.dtype),
-                          (a, c_in))  # s[k] = S_k
-    jac = g_jac @ s_n
+    r = _rollout(step, terminal, y0, z, index)
+    grad, jac = _first_order(r, z, index)
 
     def second_order():
-        g_y = weights @ g_jac
-        g_yy = jax.hessian(lambda y: weights @ stacked(y))(y_n)
-        _, mu = jax.lax.scan(lambda m_, a_k: (a_k.T @ m_, m_), g_y, a, reverse=True)  # mu[k] = mu_{k+1}
-
-        def curvature(k, y, vk, mu_k):
-            return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
-
-        w = jax.vmap(curvature)(ks, ys, v, mu)
+        g_yy, w = _curvature(step, r, lam, objective_weight)
+        a, b = r.a, r.b
         w_yy, w_vy, w_vv = w[:, :n_y, :n_y], w[:, n_y:, :n_y], w[:, n_y:, n_y:]
         _, q_next = jax.lax.scan(lambda q_, inp: (inp[1] + inp[0].T @ q_ @ inp[0], q_), g_yy, (a, w_yy),
                                  reverse=True)  # q_next[k] = Q_{k+1}
+        c_in = jax.vmap(lambda b_k, idx: jnp.zeros((n_y, n_z), z.dtype).at[:, idx].add(b_k))(b, index)  # B_k P_k
+        _, s = jax.lax.scan(lambda s_, inp: (inp[0] @ s_ + inp[1], s_), jnp.zeros((n_y, n_z), z.dtype),
+                            (a, c_in))  # s[k] = S_k
         bq = jnp.einsum("kai,kab->kib", b, q_next)
         d = w_vv + jnp.einsum("kib,kbj->kij", bq, b)
-        r = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
-        rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(r)
+        m_s = jnp.einsum("kij,kjn->kin", w_vy + jnp.einsum("kib,kbj->kij", bq, a), s)  # M_k S_k: (N, q, n_z)
+        rows = jnp.zeros((n_z, n_z), z.dtype).at[index].add(m_s)
         diag = jnp.zeros((n_z, n_z), z.dtype).at[index[:, :, None], index[:, None, :]].add(d)
         full = diag + 2.0 * rows  # H without the transposed cross terms; symmetrised in one sum (exactly symmetric)
         return 0.5 * (full + full.T)
@@ -109,4 +95,92 @@ def staged_derivatives(
         hess = second_order()
     else:
         hess = jax.lax.cond(hessian, second_order, lambda: jnp.zeros((n_z, n_z), z.dtype))
-    return f, c, jac[0], jac[1:], hess
+    return r.values[0], r.values[1:], grad, jac, hess
+
+
+class _Rollout(NamedTuple):
+    ks: Any  # (N,) step numbers
+    ys: Any  # (N, n_y) y_k, k < N
+    v: Any  # (N, q) v_k
+    y_n: Any
+    a: Any  # (N, n_y, n_y)
+    b: Any  # (N, n_y, q)
+    values: Any  # (1 + m,) (F, c)
+    g_jac: Any  # (1 + m, n_y) dG/dy_N
+    adj: Any  # (N, 1 + m, n_y) adj[k] = Lambda_{k+1}
+    stacked: Callable  # y_N -> (F, c) as one vector
+
+
+def _rollout(step, terminal, y0, z, index) -> _Rollout:
+    """The rollout, the steps' Jacobians and the adjoints of F and of each row (``Lambda_k = Lambda_{k+1} A_k``, in
+    one pass): everything first order."""
+    ks = jnp.arange(index.shape[0], dtype=jnp.int32)
+    v = z[index]
+
+    def forward(y, inputs):
+        k, vk = inputs
+        return step(k, y, vk), y
+
+    y_n, ys = jax.lax.scan(forward, y0, (ks, v))
+    a, b = jax.vmap(jax.jacfwd(step, argnums=(1, 2)))(ks, ys, v)
+
+    def stacked(y):
+        f_, c_ = terminal(y)
+        return jnp.concatenate([jnp.reshape(f_, (1,)), c_])
+
+    g_jac = jax.jacfwd(stacked)(y_n)
+    _, adj = jax.lax.scan(lambda l_, a_k: (l_ @ a_k, l_), g_jac, a, reverse=True)
+    return _Rollout(ks, ys, v, y_n, a, b, stacked(y_n), g_jac, adj, stacked)
+
+
+def _first_order(r: _Rollout, z, index):
+    """The gradient and the Jacobian: row ``i`` of ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``, scattered to ``z`` by
+    ``index`` (``O(N n_y (1 + m))``, without the ``n_y x n_z`` forward sensitivities)."""
+    per_step = jnp.einsum("kia,kaq->kiq", r.adj, r.b)  # (N, 1 + m, q)
+    dz = jnp.zeros((r.g_jac.shape[0], z.shape[0]), z.dtype).at[:, index].add(jnp.moveaxis(per_step, 1, 0))
+    return dz[0], dz[1:]
+
+
+def _curvature(step, r: _Rollout, lam, objective_weight):
+    """``(G_yy, W)``: the Hessian of ``l^T G`` at ``y_N`` and each step's curvature ``W_k``, the Hessian of
+    ``mu_{k+1}^T Phi_k`` in ``(y_k, v_k)``, with the Lagrangian's adjoint ``mu`` the weighted sum of the adjoints."""
+    weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, r.y_n.dtype), (1,)), lam])
+    n_y = r.y_n.shape[0]
+    g_yy = jax.hessian(lambda y: weights @ r.stacked(y))(r.y_n)
+    mu = jnp.einsum("i,kia->ka", weights, r.adj)  # mu[k] = mu_{k+1}
+
+    def curvature(k, y, vk, mu_k):
+        return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
+
+    return g_yy, jax.vmap(curvature)(r.ks, r.ys, r.v, mu)
+
+
+def stage_derivatives(
+    step: Callable[[Any, Any, Any], Any],
+    terminal: Callable[[Any], tuple[Any, Any]],
+    y0: Any,
+    z: Any,
+    index: Any,
+    lam: Any,
+    objective_weight: Any = 1.0,
+) -> tuple[Any, Any, Any, Any, Stages]:
+    r"""``(F, c, dF/dz, dc/dz, Stages)``: :func:`staged_derivatives` with the Hessian left as its stages.
+
+    The Hessian of ``sigma F + lam^T c`` in ``z`` is that of the linear-quadratic problem (Dunn & Bertsekas 1989)
+
+    .. math::
+        \tfrac12 \sum_k \begin{pmatrix} \delta y_k \\ \delta v_k \end{pmatrix}^\top W_k
+        \begin{pmatrix} \delta y_k \\ \delta v_k \end{pmatrix} + \tfrac12 \delta y_N^\top G_{yy} \delta y_N,
+        \qquad \delta y_{k+1} = A_k \delta y_k + B_k \delta v_k,\quad \delta y_0 = 0,\quad \delta v_k =
+        \delta z[\text{index}_k],
+
+    which a Riccati recursion factorises in ``O(N)`` (``solvers/interior_point/riccati.py``). The gradient and the
+    Jacobian come from ``1 + m`` adjoints (``Lambda_N = dG/dy_N``, ``Lambda_k = Lambda_{k+1} A_k``, row ``i`` of
+    ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``), scattered to ``z`` by ``index``: ``O(N n_y (1 + m))`` without the
+    ``n_y x n_z`` forward sensitivities or the ``n_z x n_z`` Hessian. Arguments as :func:`staged_derivatives`.
+    """
+    index = jnp.asarray(index)
+    r = _rollout(step, terminal, y0, z, index)
+    grad, jac = _first_order(r, z, index)
+    g_yy, w = _curvature(step, r, lam, objective_weight)
+    return r.values[0], r.values[1:], grad, jac, Stages(r.a, r.b, w, g_yy, r.g_jac[1:])

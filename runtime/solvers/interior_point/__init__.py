@@ -7,6 +7,7 @@ r"""``InteriorPoint``: a second-order primal-dual interior-point NLP solver (aft
 * :mod:`.restoration`: IPOPT's feasibility restoration phase, iterations of the same loop where the search fails;
 * :mod:`.rules`: the barrier, fraction-to-the-boundary and filter rules both phases use;
 * :mod:`.kkt`: the Newton system's inertia-corrected dense factorisation;
+* :mod:`.riccati` (with :mod:`.blocks`): the same system stage by stage for single shooting (a Riccati recursion);
 * :mod:`.problem`: slacks, bounds, scaling and the exact derivatives;
 * :mod:`.implicit`: the ``jax.custom_vjp`` (implicit function theorem) that makes the solve differentiable.
 """

@@ -52,15 +52,23 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve, solve_triangular
 
-__all__ = ["Factors", "factorize_with_inertia", "solve"]
+from .rules import (  # noqa: F401  (the inertia correction's constants, re-exported for its users)
+    DELTA_C_BAR,
+    DELTA_C_EXPONENT,
+    DELTA_W_FIRST,
+    DELTA_W_MAX,
+    DELTA_W_MIN,
+    GROW,
+    GROW_FIRST,
+    MAX_ATTEMPTS,
+    RHO_RETRIES,
+    RHO_RETRY,
+    SHRINK,
+    inertia_schedule,
+)
 
-# IPOPT's defaults (first_hessian_perturbation, min/max_hessian_perturbation, perturb_inc_fact(_first),
-# perturb_dec_fact, jacobian_regularization_value and _exponent).
-DELTA_W_FIRST, DELTA_W_MIN, DELTA_W_MAX = 1e-4, 1e-20, 1e40
-GROW_FIRST, GROW, SHRINK = 100.0, 8.0, 1.0 / 3.0
-DELTA_C_BAR, DELTA_C_EXPONENT = 1e-8, 0.25
-RHO_RETRY, RHO_RETRIES = 1e4, 2  # H_rho is retried at rho0 * 1e4 and rho0 * 1e8
-MAX_ATTEMPTS = 60
+__all__ = ["Factors", "cholesky", "factorize_with_inertia", "solve"]
+
 # A is treated as rank deficient (null-space method off) when |R_ii| < RANK_TOL max(1, max |R_jj|).
 RANK_TOL = 1e-10
 
@@ -96,7 +104,7 @@ def _placeholders(n_x: int, m: int, dtype) -> tuple:
             jnp.zeros((k, k), dtype))
 
 
-def _cholesky(matrix) -> tuple[jax.Array, jax.Array]:
+def cholesky(matrix) -> tuple[jax.Array, jax.Array]:
     """``(lower factor, positive definite)``; the identity in place of a failed factor (NaN-free shapes).
 
     NOTE: later solves use the factor one right-hand side at a time: XLA:CPU's triangular solve with a matrix of
@@ -111,11 +119,11 @@ def _cholesky(matrix) -> tuple[jax.Array, jax.Array]:
 def _factorize(h_s, jac, rho, delta_c) -> tuple[Factors, jax.Array, jax.Array]:
     """Factors (the certificate's) and (H_rho positive definite, S positive definite)."""
     n_x, m = h_s.shape[0], jac.shape[0]
-    chol_h, ok_h = _cholesky(h_s + rho * (jac.T @ jac) if m else h_s)
+    chol_h, ok_h = cholesky(h_s + rho * (jac.T @ jac) if m else h_s)
     if m:
         # m right-hand sides: few for shooting; collocation's many rows make this the dearest part (see above).
         hinv_at = cho_solve((chol_h, True), jac.T)
-        chol_s, ok_s = _cholesky((1.0 - rho * delta_c) * (jac @ hinv_at) + delta_c * jnp.eye(m, dtype=h_s.dtype))
+        chol_s, ok_s = cholesky((1.0 - rho * delta_c) * (jac @ hinv_at) + delta_c * jnp.eye(m, dtype=h_s.dtype))
     else:
         hinv_at, chol_s, ok_s = jnp.zeros((h_s.shape[0], 0), h_s.dtype), jnp.zeros((0, 0), h_s.dtype), jnp.array(True)
     return Factors(h_s, chol_h, hinv_at, chol_s, rho, delta_c, jnp.array(False),
@@ -188,13 +196,6 @@ def factorize_with_inertia(
                         lambda: _certified(base, hess, jac, mu, delta_w_last))
 
 
-def _schedule(k, delta_w, delta_w_last, first_grown):
-    """delta_w for attempt k, after delta_w at attempt k - 1 (attempts before ``first_grown`` keep 0)."""
-    start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
-    grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
-    return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
-
-
 def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
     """The attempts on ``Z^T H_s Z = Z^T (H + Sigma) Z + delta_w I``: one Cholesky of size ``n_x - m`` each."""
     n_x, dtype = base.shape[0], base.dtype
@@ -204,8 +205,9 @@ def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Arr
 
     def attempt(a):
         k, delta_w, _, _ = a
-        chol, ok = _cholesky(reduced + delta_w * eye_k)
-        return (jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, _schedule(k + 1, delta_w, delta_w_last, 1)), ok, chol)
+        chol, ok = cholesky(reduced + delta_w * eye_k)
+        grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
+        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, chol
 
     def keep_trying(a):
         k, delta_w, done, _ = a
@@ -239,7 +241,7 @@ def _certified(base, hess, jac, mu, delta_w_last) -> tuple[Factors, jax.Array, j
         done = ok_h & ok_s
         advance = ~done & ~rank_deficient
         k = jnp.where(advance, a.k + 1, a.k)
-        delta_w = jnp.where(advance, _schedule(a.k + 1, a.delta_w, delta_w_last, first_grown), a.delta_w)
+        delta_w = jnp.where(advance, inertia_schedule(a.k + 1, a.delta_w, delta_w_last, first_grown), a.delta_w)
         return _Attempt(k, delta_w, delta_c, rho, done, factors)
 
     def keep_trying(a: _Attempt):

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from ...status import Status
-from .kkt import factorize_with_inertia, solve
+from . import kkt
 from .problem import Layout
 from .restoration import Restoration, make_restoration
 from .rules import (
@@ -154,6 +154,9 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
     scale = jnp.asarray(layout.problem.scale)
     mu_min = tol / 10.0
     idle, enter, restoration_step = make_restoration(layout, tol, constr_viol_tol, mu_min)
+    # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
+    factorize_with_inertia, solve = ((layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
+                                     else (kkt.factorize_with_inertia, kkt.solve))
 
     def cold(data: Any, z0: Any) -> WarmStart:
         x0 = layout.start(jnp.asarray(z0) / scale, data)
@@ -191,7 +194,8 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
             row_scale = jnp.where((st.k == 0) & fresh, first_rows, st.row_scale)
             pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
-            finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in (pt.f, pt.grad, pt.g, pt.jac, pt.hess)]))
+            finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(
+                (pt.f, pt.grad, pt.g, pt.jac, pt.hess))]))
             kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
             converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
             stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
@@ -242,15 +246,16 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                     x_t, lam_t = x + alpha * dx, lam + alpha * dlam
                     if second_order_correction:
                         # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
-                        # taken only when the full step did not reduce the infeasibility. A cond, not a select: the
-                        # correction's two solves would otherwise be paid on every trial of a long line search.
-                        def corrected(_):
-                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + g_first))
+                        # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
+                        # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
+                        # every trial of every member; a loop runs only while some member needs it.
+                        def corrected(c):
+                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]))
                             a_c = bounds.step_to_boundary(x, dx_c, tau)
-                            return x + a_c * dx_c, lam + a_c * dlam_c
+                            return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
 
                         use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
-                        x_t, lam_t = jax.lax.cond(use_soc, corrected, lambda _: (x_t, lam_t), None)
+                        _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
                     f_t, g_t = layout.values(x_t, data, sigma, row_scale)
                     theta_t = jnp.sum(jnp.abs(g_t))
                     ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,

@@ -20,6 +20,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..base import ScaledProblem, split_constraints
+from .kkt import uses_nullspace
+from .riccati import Riccati, StageHessian, chain
 
 __all__ = ["Layout", "Point"]
 
@@ -34,7 +36,7 @@ class Point(NamedTuple):
     grad: jax.Array  # (n_x,) d(sigma F)/dx (zero on the slacks)
     g: jax.Array  # (m,) the scaled equality residuals
     jac: jax.Array  # (m, n_x) dg/dx
-    hess: jax.Array  # (n_x, n_x) Hessian of sigma F + lambda^T g (zero on the slacks: they enter linearly)
+    hess: Any  # (n_x, n_x) Hessian of sigma F + lambda^T g (zero on the slacks: they enter linearly), or its stages
     objective: jax.Array  # F(w), unscaled
     violation: jax.Array  # the NLP's own constraint violation (rows as given, infinity norm)
 
@@ -45,10 +47,12 @@ class Layout:
     Attributes:
         n, m: NLP variables and constraints; n_s: slacks (non-equality rows); n_x = n + n_s.
         rows: the NLP's rows in the solver's order (equalities first, then the slack rows).
+        riccati: the stage-wise Newton step (:class:`~.riccati.Riccati`) when asked for and the NLP allows it
+            (:meth:`stagewise`), else None (dense Hessian, :mod:`.kkt`).
         x_lower, x_upper: bounds of ``x = (w, s)`` with 0 where infinite; has_lower, has_upper: which are finite.
     """
 
-    def __init__(self, problem: ScaledProblem):
+    def __init__(self, problem: ScaledProblem, kkt: str = "dense"):
         self.problem = problem
         self.n, self.m = problem.n_variables, problem.n_constraints
         c_lo, c_up = problem.c_lower, problem.c_upper
@@ -65,6 +69,20 @@ class Layout:
         # Right-hand sides of the equality rows (slack rows have none: the slack carries the bound).
         self.b = np.concatenate([c_lo[eq], np.zeros(self.n_s)])
         self.slack_sign = np.concatenate([np.zeros(eq.size), -np.ones(self.n_s)])
+        if kkt == "riccati" and not self.stagewise(problem):
+            raise ValueError("InteriorPoint(kkt='riccati'): the NLP has no stage-wise derivatives whose steps read "
+                             "the decisions as a chain (single shooting without path rows, slacks or free time)")
+        self.riccati = Riccati(problem.stage_index, self.n, self.n_s) if kkt == "riccati" else None
+
+    @staticmethod
+    def stagewise(problem: ScaledProblem) -> bool:
+        """Whether the stage-wise (Riccati) Newton step applies: stage derivatives whose steps read the decisions as
+        a chain, and few rows (the dense method's own choice for many is the null-space method)."""
+        if problem.stages is None or chain(problem.stage_index, problem.n_variables) is None:
+            return False
+        n_s = len(np.setdiff1d(np.arange(problem.n_constraints), split_constraints(problem.c_lower,
+                                                                                   problem.c_upper)[0]))
+        return not uses_nullspace(problem.n_variables + n_s, problem.n_constraints)
 
     # ---- the start ---------------------------------------------------------------------------------------------
 
@@ -118,6 +136,9 @@ class Layout:
         pass instead of a first-order program and a Hessian program: half the rollouts to compile. A transcription
         that knows its structure (``NLP.lagrangian_derivatives``: single shooting's stages) gives them itself.
         """
+        if self.riccati is not None:  # the Hessian as its stages (riccati.py)
+            f, c, grad_f, jac_c, hess = self.problem.stages(w, y, data, objective_weight)
+            return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
         if self.problem.derivatives is not None:
             f, c, grad_f, jac_c, hess = self.problem.derivatives(w, y, data, objective_weight)
             return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
@@ -149,7 +170,13 @@ class Layout:
             jac_x = jnp.concatenate([jac_w, jac_s], axis=1)
         else:
             jac_x = jnp.zeros((0, self.n_x), x.dtype)
-        hess_x = jnp.zeros((self.n_x, self.n_x), x.dtype).at[:n, :n].set(sigma * hess) if n_s else sigma * hess
+        if self.riccati is not None:
+            g_rows = row_scale[:, None] * hess.g_c[self.rows]
+            hess_x = StageHessian(hess.a, hess.b, sigma * hess.w, sigma * hess.g_yy, g_rows)
+        elif n_s:
+            hess_x = jnp.zeros((self.n_x, self.n_x), x.dtype).at[:n, :n].set(sigma * hess)
+        else:
+            hess_x = sigma * hess
         return Point(sigma * f, grad, g, jac_x, hess_x, f, self.violation(x, c))
 
     def multipliers(self, lam: jax.Array, sigma: jax.Array, row_scale: jax.Array) -> jax.Array:

@@ -49,11 +49,13 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
-from .kkt import DELTA_W_MAX, MAX_ATTEMPTS, _cholesky, _schedule
+from .kkt import cholesky
 from .rules import (
+    DELTA_W_MAX,
     FILTER_SIZE,
     KAPPA_EPS,
     KAPPA_SIGMA,
+    MAX_ATTEMPTS,
     MAX_TRIALS,
     S_MAX,
     TAU_MIN,
@@ -63,6 +65,7 @@ from .rules import (
     alpha_min,
     decrease_mu,
     fraction_to_boundary,
+    inertia_schedule,
 )
 
 __all__ = ["Restoration", "make_restoration"]
@@ -176,9 +179,15 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
         a_p, a_n = RHO - lam - mu / p, RHO + lam - mu / n_
         r1 = -(grad_x + jac.T @ lam)
         r2 = -(g - p + n_) - a_p / sp + a_n / sn
-        h_s = pt.hess + jnp.diag(zeta * d2 + sig_l + sig_u)
-        chol, h_s, delta_w, inertia_ok = _factorize(h_s, jac, dinv, rs.delta_w)
-        dx, dlam = _solve(chol, h_s, jac, dinv, r1, r2)
+        if layout.riccati is not None:  # stage by stage (riccati.py): the same system, the same schedule
+            ric = layout.riccati
+            factors, delta_w, inertia_ok = ric.factorize_weighted(pt.hess, zeta * d2 + sig_l + sig_u, jac, dinv,
+                                                                  rs.delta_w)
+            dx, dlam = ric.solve_weighted(factors, jac, dinv, r1, r2)
+        else:
+            h_s = pt.hess + jnp.diag(zeta * d2 + sig_l + sig_u)
+            chol, h_s, delta_w, inertia_ok = _factorize(h_s, jac, dinv, rs.delta_w)
+            dx, dlam = _solve(chol, h_s, jac, dinv, r1, r2)
         dp, dn = (dlam - a_p) / sp, (-a_n - dlam) / sn
         dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
         dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
@@ -259,8 +268,9 @@ def _factorize(h_s, jac, dinv, delta_w_last):
 
     def attempt(a):
         k, delta_w, _, _ = a
-        chol, ok = _cholesky(base + delta_w * eye)
-        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, _schedule(k + 1, delta_w, delta_w_last, 1)), ok, chol
+        chol, ok = cholesky(base + delta_w * eye)
+        grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
+        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, chol
 
     def keep_trying(a):
         k, delta_w, done, _ = a

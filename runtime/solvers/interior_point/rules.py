@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair"]
+__all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule"]
 
 # IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
 KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -25,6 +25,14 @@ ETA, MAX_TRIALS = 1e-4, 45
 GAMMA_THETA, GAMMA_PHI, GAMMA_ALPHA, DELTA, S_THETA, S_PHI = 1e-5, 1e-8, 0.05, 1.0, 1.1, 2.3
 THETA_MIN_FACT, THETA_MAX_FACT, FILTER_SIZE = 1e-4, 1e4, 32
 EPS = float(np.finfo(np.float64).eps)
+# The inertia correction (both phases, dense and stage-wise): IPOPT's first_hessian_perturbation,
+# min/max_hessian_perturbation, perturb_inc_fact(_first), perturb_dec_fact, jacobian_regularization_value and
+# _exponent; the certificate's retries of rho (at rho0 * 1e4 and rho0 * 1e8, see kkt.py) and the attempts' limit.
+DELTA_W_FIRST, DELTA_W_MIN, DELTA_W_MAX = 1e-4, 1e-20, 1e40
+GROW_FIRST, GROW, SHRINK = 100.0, 8.0, 1.0 / 3.0
+DELTA_C_BAR, DELTA_C_EXPONENT = 1e-8, 0.25
+RHO_RETRY, RHO_RETRIES = 1e4, 2
+MAX_ATTEMPTS = 60
 
 
 class Bounds:
@@ -99,3 +107,11 @@ def add_pair(f_theta, f_phi, count, grow, theta, phi0) -> tuple[jax.Array, jax.A
     f_theta = jnp.where(grow, f_theta.at[slot].set((1.0 - GAMMA_THETA) * theta), f_theta)
     f_phi = jnp.where(grow, f_phi.at[slot].set(phi0 - GAMMA_PHI * theta), f_phi)
     return f_theta, f_phi
+
+
+def inertia_schedule(k, delta_w, delta_w_last, first_grown):
+    """IPOPT's ``delta_w`` for inertia attempt ``k`` after ``delta_w`` at attempt ``k - 1``: 0 before ``first_grown``,
+    then ``1e-4`` (or a third of the last iteration's), growing 100x (8x after an earlier correction)."""
+    start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
+    grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
+    return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
