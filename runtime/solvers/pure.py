@@ -40,8 +40,11 @@ class ScaledEvaluation:
         self.problem = problem
         evaluate, scale = problem.evaluate, jnp.asarray(problem.scale)
         # One program for both (a shooting NLP's F and c share a rollout): one dispatch per report, not two.
-        self.evaluate = CompiledFunction(lambda z, data: evaluate(z / scale, data),
-                                         program_key(problem.key, "evaluate"))
+        def unscaled(z, data):
+            return evaluate(z / scale, data)
+
+        self.evaluate = CompiledFunction(unscaled, program_key(problem.key, "evaluate"))
+        self._evaluate_batch = CompiledFunction(jax.vmap(unscaled), program_key(problem.key, "evaluate:batch"))
 
     def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
         """Compile the objective and constraints used to report the result; returns the seconds spent."""
@@ -51,6 +54,14 @@ class ScaledEvaluation:
         """``(F(z), c(z))`` on the host; ``c`` is None when the problem has no constraints."""
         f, c = self.evaluate(z, data)
         return float(f), (np.asarray(c) if self.problem.n_constraints else None)
+
+    def values_batch(self, z: np.ndarray, batched_data: Any) -> list[tuple[float, np.ndarray | None]]:
+        """:meth:`values` of each member (``z`` of shape (B, n), every leaf of ``batched_data`` batched), from one
+        vmapped program: a dispatch per member was a sixth of a 1024-member batch's wall time (Mould Fungicide)."""
+        self._evaluate_batch.compile(z, batched_data)
+        f, c = (np.asarray(a) for a in self._evaluate_batch(z, batched_data))
+        constrained = bool(self.problem.n_constraints)
+        return [(float(f[i]), c[i] if constrained else None) for i in range(z.shape[0])]
 
 
 class _Programs:
@@ -97,6 +108,11 @@ class AbstractPureSolver(abc.ABC):
     def prepare_report(self, problem: Any, z0: np.ndarray, data: Any) -> float:
         """Compile what :meth:`report` evaluates; returns the seconds spent (0 when nothing is compiled)."""
         return 0.0
+
+    def batch_values(self, problem: Any, output: Any, batched_data: Any) -> list | None:
+        """What :meth:`report` evaluates, for every member of a batch's ``output`` at once (passed to it as
+        ``values``), or None: each report evaluates its own."""
+        return None
 
     def batch_strategy(self, problem: Any = None) -> str:
         """How :meth:`solve_batch` runs its members in one program: ``"vmap"`` (the default) or ``"map"`` (in turn,
@@ -154,9 +170,10 @@ class AbstractPureSolver(abc.ABC):
         start = time.perf_counter()
         out = jax.device_get(jax.block_until_ready(programs.batched(batched_data, z0)))
         solve_seconds = time.perf_counter() - start
+        values = self.batch_values(problem, out, batched_data)
         return [
             self.report(problem, jax.tree.map(lambda x, i=i: x[i], out), members[i], compile_seconds / batch,
-                        solve_seconds / batch)
+                        solve_seconds / batch, **({} if values is None else {"values": values[i]}))
             for i in range(batch)
         ]
 

@@ -172,6 +172,12 @@ def test_a_vmapped_batch_agrees_with_ipopt():
         ref = solve(system, transcription, Ipopt(), x0=x, resimulate=False)
         assert member.converged and ref.converged and member.iterations <= 2 * ref.iterations
         assert abs(member.cost - ref.cost) <= 1e-8 * abs(ref.cost)
+        # The report and the trajectory come from batched programs (one dispatch for all members): each member's
+        # own, as a single solve's Solution has them.
+        np.testing.assert_allclose(member.states, ref.states, rtol=1e-6, atol=1e-8)
+        np.testing.assert_allclose(member.controls, ref.controls, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(member.interval_errors, ref.interval_errors, rtol=1e-3, atol=1e-12)
+        assert member.constraint_violation <= 1e-8 and member.defect == pytest.approx(ref.defect, abs=1e-8)
 
 
 def test_kkt_riccati_refuses_an_nlp_without_stages():

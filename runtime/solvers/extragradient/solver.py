@@ -167,8 +167,11 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
     def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
         return self._compiled(nlp).prepare_evaluation(z0, data)
 
+    def batch_values(self, nlp: NLP, out: ExtragradientSolution, batched_data: Any) -> list:
+        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data)
+
     def report(self, nlp: NLP, out: ExtragradientSolution, data: Any, compile_seconds: float,
-               solve_seconds: float) -> NLPResult:
+               solve_seconds: float, values: tuple | None = None) -> NLPResult:
         """The NLPResult of one member: objective and violation re-evaluated at ``z`` in float64 on the host.
 
         Status: ``CONVERGED`` when the loop's KKT test passed and the objective is finite; ``ITERATION_LIMIT`` at
@@ -176,7 +179,7 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
         """
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective, c = fns.values(z, data)
+        objective, c = fns.values(z, data) if values is None else values
         violation = constraint_violation(nlp, z, c)
         converged = bool(out.converged) and np.isfinite(objective)
         if converged:

@@ -151,13 +151,16 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
         return self._compiled(nlp).prepare_evaluation(z0, data)
 
+    def batch_values(self, nlp: NLP, out: InteriorPointSolution, batched_data: Any) -> list:
+        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data)
+
     def report(self, nlp: NLP, out: InteriorPointSolution, data: Any, compile_seconds: float,
-               solve_seconds: float) -> NLPResult:
+               solve_seconds: float, values: tuple | None = None) -> NLPResult:
         """One member's NLPResult: objective and violation re-evaluated at ``z`` on the host; ``CONVERGED`` only if
         the loop converged *and* the host's violation and objective agree (finite, within ``constr_viol_tol``)."""
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective, c = fns.values(z, data)
+        objective, c = fns.values(z, data) if values is None else values
         violation = constraint_violation(nlp, z, c)
         status = Status(int(out.status))
         if status is Status.CONVERGED and not (np.isfinite(objective) and violation <= self.constr_viol_tol):
