@@ -348,8 +348,9 @@ class _Callbacks:
         self.iterations = 0
         self._staged = None
         if fns.shared:
-            self._staged = staged = fns.staged.executable(*fns.staged_args(w0, data))
-            _, one, zeros, _, first_order = fns.staged_args(w0, data)
+            args = fns.staged_args(w0, data)
+            self._staged = staged = fns.staged.executable(*args)
+            _, one, zeros, _, first_order = args
             self._point = lambda w, data_: staged(w, one, zeros, data_, first_order)[0]
         else:
             self._point = fns.point.executable(w0, data)

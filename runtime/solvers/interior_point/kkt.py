@@ -67,7 +67,7 @@ from .rules import (  # noqa: F401  (the inertia correction's constants, re-expo
     inertia_schedule,
 )
 
-__all__ = ["Factors", "cholesky", "factorize_with_inertia", "solve"]
+__all__ = ["Factors", "cholesky", "factorize_with_inertia", "regularized_cholesky", "solve"]
 
 # A is treated as rank deficient (null-space method off) when |R_ii| < RANK_TOL max(1, max |R_jj|).
 RANK_TOL = 1e-10
@@ -196,16 +196,15 @@ def factorize_with_inertia(
                         lambda: _certified(base, hess, jac, mu, delta_w_last))
 
 
-def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
-    """The attempts on ``Z^T H_s Z = Z^T (H + Sigma) Z + delta_w I``: one Cholesky of size ``n_x - m`` each."""
-    n_x, dtype = base.shape[0], base.dtype
-    q1, z = q[:, :m], q[:, m:]
-    reduced = z.T @ base @ z
-    eye_k = jnp.eye(n_x - m, dtype=dtype)
+def regularized_cholesky(matrix, delta_w_last) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(lower Cholesky factor of matrix + delta_w I, delta_w, ok)``: IPOPT's schedule for ``delta_w`` from 0 (one
+    Cholesky an attempt), where the matrix's positive definiteness alone certifies the inertia (the null-space
+    method's reduced Hessian, the restoration phase's system)."""
+    eye = jnp.eye(matrix.shape[0], dtype=matrix.dtype)
 
     def attempt(a):
         k, delta_w, _, _ = a
-        chol, ok = cholesky(reduced + delta_w * eye_k)
+        chol, ok = cholesky(matrix + delta_w * eye)
         grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
         return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, chol
 
@@ -213,8 +212,17 @@ def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Arr
         k, delta_w, done, _ = a
         return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
 
+    zero = jnp.zeros((), matrix.dtype)
+    _, delta_w, ok, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye))
+    return chol, delta_w, ok
+
+
+def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
+    """The attempts on ``Z^T H_s Z = Z^T (H + Sigma) Z + delta_w I``: one Cholesky of size ``n_x - m`` each."""
+    n_x, dtype = base.shape[0], base.dtype
+    q1, z = q[:, :m], q[:, m:]
+    chol, delta_w, done = regularized_cholesky(z.T @ base @ z, delta_w_last)
     zero = jnp.zeros((), dtype)
-    _, delta_w, done, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye_k))
     eye = jnp.eye(n_x, dtype=dtype)
     factors = Factors(base + delta_w * eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero,
                       jnp.array(True), q1, z, r, chol)

@@ -49,13 +49,11 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
-from .kkt import cholesky
+from .kkt import regularized_cholesky
 from .rules import (
-    DELTA_W_MAX,
     FILTER_SIZE,
     KAPPA_EPS,
     KAPPA_SIGMA,
-    MAX_ATTEMPTS,
     MAX_TRIALS,
     S_MAX,
     TAU_MIN,
@@ -65,7 +63,6 @@ from .rules import (
     alpha_min,
     decrease_mu,
     fraction_to_boundary,
-    inertia_schedule,
 )
 
 __all__ = ["Restoration", "make_restoration"]
@@ -262,22 +259,8 @@ def _reset_bound_multipliers(bounds: Bounds, rs: Restoration, x, mu) -> tuple[An
 def _factorize(h_s, jac, dinv, delta_w_last):
     """IPOPT's inertia correction on ``H_s + A^T diag(dinv) A`` (see the module docstring): ``(lower Cholesky factor,
     H_s with the accepted delta_w, delta_w, ok)``."""
-    n_x, dtype = h_s.shape[0], h_s.dtype
-    eye = jnp.eye(n_x, dtype=dtype)
-    base = h_s + jac.T @ (dinv[:, None] * jac)
-
-    def attempt(a):
-        k, delta_w, _, _ = a
-        chol, ok = cholesky(base + delta_w * eye)
-        grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
-        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, chol
-
-    def keep_trying(a):
-        k, delta_w, done, _ = a
-        return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
-
-    zero = jnp.zeros((), dtype)
-    _, delta_w, ok, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye))
+    chol, delta_w, ok = regularized_cholesky(h_s + jac.T @ (dinv[:, None] * jac), delta_w_last)
+    eye = jnp.eye(h_s.shape[0], dtype=h_s.dtype)
     return chol, h_s + delta_w * eye, delta_w, ok
 
 
