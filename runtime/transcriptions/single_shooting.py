@@ -10,6 +10,7 @@ import numpy as np
 
 from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost, with_running_cost
 from ..nlp import NLP
+from ..smallops import take
 from ..system import System
 from ._common import (
     bounded_free_states,
@@ -199,8 +200,9 @@ class SingleShooting(AbstractTranscription):
             f, c, grad, jac, st = staged_stage_derivatives(*stage_problem(z, data), z, stage_index, lam,
                                                            objective_weight)
             n, keep = system.n_states, np.r_[np.arange(system.n_states), system.n_states + 1 + np.arange(2 * m)]
-            return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=st.w[:, keep][:, :, keep],
-                                                g_yy=st.g_yy[:n, :n], g_c=st.g_c[:, :n])
+            w = take(take(st.w, keep, axis=1), keep, axis=2)
+            return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=w, g_yy=st.g_yy[:n, :n],
+                                                g_c=st.g_c[:, :n])
 
         def stage_problem(z, data):
             n = system.n_states

@@ -28,6 +28,9 @@ from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+from ..smallops import add_at, matmul, take
 
 __all__ = ["Stages", "stage_derivatives", "staged_derivatives"]
 
@@ -60,7 +63,7 @@ def staged_derivatives(
         terminal: ``y_N -> (F, c)``, F a scalar and c a vector (possibly empty).
         y0: the initial state (not a decision).
         z: the decisions, shape (n_z,); every one must be read by some step (nothing else reaches ``terminal``).
-        index: (N, q) integer array: step k reads ``v_k = z[index[k]]``; steps may share entries.
+        index: (N, q) integer NumPy array (static): step k reads ``v_k = z[index[k]]``; steps may share entries.
         lam: multipliers of ``c``, shape like c.
         objective_weight: the objective's weight in the Lagrangian (1 by default).
         hessian: True, or a traced boolean: where false the Hessian is zeros and its second-order part is skipped
@@ -69,7 +72,7 @@ def staged_derivatives(
     Returns:
         F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
     """
-    index = jnp.asarray(index)
+    index = np.asarray(index)  # static: its gathers and scatters are strided slices (smallops)
     n_z, n_y = z.shape[0], y0.shape[0]
     r = _rollout(step, terminal, y0, z, index)
     grad, jac = _first_order(r, z, index)
@@ -115,7 +118,7 @@ def _rollout(step, terminal, y0, z, index) -> _Rollout:
     """The rollout, the steps' Jacobians and the adjoints of F and of each row (``Lambda_k = Lambda_{k+1} A_k``, in
     one pass): everything first order."""
     ks = jnp.arange(index.shape[0], dtype=jnp.int32)
-    v = z[index]
+    v = take(z, index)
 
     def forward(y, inputs):
         k, vk = inputs
@@ -129,15 +132,15 @@ def _rollout(step, terminal, y0, z, index) -> _Rollout:
         return jnp.concatenate([jnp.reshape(f_, (1,)), c_])
 
     g_jac = jax.jacfwd(stacked)(y_n)
-    _, adj = jax.lax.scan(lambda l_, a_k: (l_ @ a_k, l_), g_jac, a, reverse=True)
+    _, adj = jax.lax.scan(lambda l_, a_k: (matmul(l_, a_k), l_), g_jac, a, reverse=True)
     return _Rollout(ks, ys, v, y_n, a, b, stacked(y_n), g_jac, adj, stacked)
 
 
 def _first_order(r: _Rollout, z, index):
     """The gradient and the Jacobian: row ``i`` of ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``, scattered to ``z`` by
     ``index`` (``O(N n_y (1 + m))``, without the ``n_y x n_z`` forward sensitivities)."""
-    per_step = jnp.einsum("kia,kaq->kiq", r.adj, r.b)  # (N, 1 + m, q)
-    dz = jnp.zeros((r.g_jac.shape[0], z.shape[0]), z.dtype).at[:, index].add(jnp.moveaxis(per_step, 1, 0))
+    per_step = matmul(r.adj, r.b)  # (N, 1 + m, q)
+    dz = add_at(z.shape[0], index, jnp.moveaxis(per_step, 1, 0), axis=1)
     return dz[0], dz[1:]
 
 
@@ -147,10 +150,10 @@ def _curvature(step, r: _Rollout, lam, objective_weight):
     weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, r.y_n.dtype), (1,)), lam])
     n_y = r.y_n.shape[0]
     g_yy = jax.hessian(lambda y: weights @ r.stacked(y))(r.y_n)
-    mu = jnp.einsum("i,kia->ka", weights, r.adj)  # mu[k] = mu_{k+1}
+    mu = jnp.sum(weights[None, :, None] * r.adj, axis=1)  # mu[k] = mu_{k+1}
 
     def curvature(k, y, vk, mu_k):
-        return jax.hessian(lambda yv: jnp.dot(mu_k, step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
+        return jax.hessian(lambda yv: jnp.sum(mu_k * step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
 
     return g_yy, jax.vmap(curvature)(r.ks, r.ys, r.v, mu)
 
@@ -179,7 +182,7 @@ def stage_derivatives(
     ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``), scattered to ``z`` by ``index``: ``O(N n_y (1 + m))`` without the
     ``n_y x n_z`` forward sensitivities or the ``n_z x n_z`` Hessian. Arguments as :func:`staged_derivatives`.
     """
-    index = jnp.asarray(index)
+    index = np.asarray(index)  # static: its gathers and scatters are strided slices (smallops)
     r = _rollout(step, terminal, y0, z, index)
     grad, jac = _first_order(r, z, index)
     g_yy, w = _curvature(step, r, lam, objective_weight)

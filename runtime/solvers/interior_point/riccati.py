@@ -50,6 +50,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...smallops import add_at, matmul, matvec, take
 from . import blocks as bl
 from .blocks import cho_solve_array as _cho_solve
 from .blocks import cholesky_array as _cholesky
@@ -142,9 +143,10 @@ class Riccati:
         ``U_k``, as blocks (entries of shape (N,))."""
         n_y = h.a.shape[1]
         order = np.concatenate([np.arange(n_y), n_y + self.carry, n_y + self.new])
-        w = h.w[:, order][:, :, order]
+        w = take(take(h.w, order, axis=1), order, axis=2)
         nx = n_y + self.c
-        return (bl.blocks(jnp.concatenate([h.a, h.b[:, :, self.carry]], axis=2)), bl.blocks(h.b[:, :, self.new]),
+        return (bl.blocks(jnp.concatenate([h.a, take(h.b, self.carry, axis=2)], axis=2)),
+                bl.blocks(take(h.b, self.new, axis=2)),
                 bl.blocks(w[:, :nx, :nx]), bl.blocks(w[:, nx:, :nx]), bl.blocks(w[:, nx:, nx:]))
 
     def _full(self, a_top, b_top):
@@ -158,13 +160,13 @@ class Riccati:
         """``(P_N^yy, chol T, C, ok)`` after the slacks' elimination."""
         j_s = jac[:, self.n:]
         g_w = h.g_rows * weights[:, None]
-        p_yy = h.g_yy + h.g_rows.T @ g_w
+        p_yy = h.g_yy + matmul(h.g_rows.T, g_w)
         if not self.n_s:
             return p_yy, jnp.zeros((0, 0), d.dtype), jnp.zeros((p_yy.shape[0], 0), d.dtype), jnp.array(True)
-        t = jnp.diag(d[self.n:]) + j_s.T @ (weights[:, None] * j_s)
+        t = jnp.diag(d[self.n:]) + matmul(j_s.T, weights[:, None] * j_s)
         chol_t, ok = _cholesky(t)
-        cross = g_w.T @ j_s
-        return p_yy - cross @ _cho_solve(chol_t, cross.T), chol_t, cross, ok
+        cross = matmul(g_w.T, j_s)
+        return p_yy - matmul(cross, _cho_solve(chol_t, cross.T)), chol_t, cross, ok
 
     def factor(self, h: StageHessian, d, jac, weights) -> tuple[Factors, jax.Array]:
         """``H + diag(d) + A^T diag(weights) A`` factorised, and whether it is positive definite."""
@@ -172,7 +174,7 @@ class Riccati:
         n_y, c, nu, dtype = h.a.shape[1], self.c, self.nu, h.a.dtype
         p_yy, chol_t, cross, ok_t = self._terminal(h, d, jac, weights)
         p_n = jnp.zeros((n_y + c, n_y + c), dtype).at[:n_y, :n_y].set(p_yy)
-        d_u = d[self.later]  # (N, nu)
+        d_u = take(d, self.later)  # (N, nu)
 
         def backward(p, inp):
             a_top, b_top, qxx_k, qux_k, quu_k, du_k = inp
@@ -190,7 +192,7 @@ class Riccati:
         inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)])
         p0, (gain, chol_r, ok_r) = jax.lax.scan(backward, bl.blocks(p_n), inputs, reverse=True)
         p0_w = bl.array(p0, d_u[:, 0][0])[n_y:]
-        chol_0, ok_0 = _cholesky(p0_w[:, n_y:] + jnp.diag(d[self.first]))
+        chol_0, ok_0 = _cholesky(p0_w[:, n_y:] + jnp.diag(take(d, self.first)))
         zeros = jnp.zeros((), dtype)
         f = Factors(h, d, at, bt, gain, chol_r, chol_0, p0_w, chol_t, cross, jnp.zeros((jac.shape[1], 0), dtype),
                     jnp.zeros((0, 0), dtype), zeros, zeros)
@@ -203,8 +205,9 @@ class Riccati:
         n, n_y, k = self.n, f.hess.a.shape[1], r.shape[1]
         r_w, r_s = r[:n], r[n:]
         p_s = _cho_solve(f.chol_t, r_s) if self.n_s else r_s  # T^{-1} r_s
-        p_n = jnp.zeros((n_y + self.c, k), r.dtype).at[:n_y].set(f.cross @ p_s)
-        r_u = bl.blocks(r_w[self.later])  # (nu, k) blocks of (N,)
+        p_n = jnp.zeros((n_y + self.c, k), r.dtype).at[:n_y].set(matmul(f.cross, p_s))
+        r_later = take(r_w, self.later)  # (N, nu, k)
+        r_u = bl.blocks(r_later)  # (nu, k) blocks of (N,)
         full_low = lambda low: [row + [0.0] * (len(low) - len(row)) for row in low]  # noqa: E731
 
         def backward(p, inp):
@@ -216,7 +219,7 @@ class Riccati:
 
         p0, ff = jax.lax.scan(backward, bl.blocks(p_n), (f.at, f.bt, f.gain, f.chol_r, r_u), reverse=True)
         p0 = bl.array(p0, r[0, 0])
-        w0 = -_cho_solve(f.chol_0, p0[n_y:] - r_w[self.first])
+        w0 = -_cho_solve(f.chol_0, p0[n_y:] - take(r_w, self.first))
         x0 = jnp.concatenate([jnp.zeros((n_y, k), r.dtype), w0])
 
         def forward(x, inp):
@@ -226,32 +229,32 @@ class Riccati:
             return bl.add(bl.mm(a_k, x), bl.mm(b_k, u)), u
 
         x_n, u = jax.lax.scan(forward, bl.blocks(x0), (f.at, f.bt, f.gain, ff))
-        u = bl.array(u, r_w[self.later][:, 0, 0])  # (N, nu, k)
-        dw = jnp.zeros_like(r_w).at[self.first].set(w0).at[self.later].set(u)
+        u = bl.array(u, r_later[:, 0, 0])  # (N, nu, k)
+        dw = add_at(n, self.first, w0) + add_at(n, self.later, u)  # w_0 and U_k are disjoint entries of w
         out = dw
         if self.n_s:
             y_n = bl.array(x_n, r[0, 0])[:n_y]
-            out = jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - f.cross.T @ y_n)])
+            out = jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - matmul(f.cross.T, y_n))])
         return out[:, 0] if vector else out
 
     def hvp(self, h: StageHessian, v):
         """``H v`` (n_x,) without ``H``: the forward sensitivity of ``v``, then the adjoint (slacks: no curvature)."""
         n, n_y = self.n, h.a.shape[1]
-        dv = v[:n][self.index]  # (N, q)
+        dv = take(v[:n], self.index)  # (N, q)
 
         def forward(dy, inp):
             a_k, b_k, dv_k = inp
-            return a_k @ dy + b_k @ dv_k, dy
+            return matvec(a_k, dy) + matvec(b_k, dv_k), dy
 
         dy_n, dy = jax.lax.scan(forward, jnp.zeros(n_y, v.dtype), (h.a, h.b, dv))
-        g = jnp.einsum("kij,kj->ki", h.w, jnp.concatenate([dy, dv], axis=1))  # W_k (dy_k, dv_k)
+        g = matvec(h.w, jnp.concatenate([dy, dv], axis=1))  # W_k (dy_k, dv_k)
 
         def backward(lam, inp):
             a_k, b_k, g_k = inp
-            return a_k.T @ lam + g_k[:n_y], g_k[n_y:] + b_k.T @ lam
+            return matvec(a_k.T, lam) + g_k[:n_y], g_k[n_y:] + matvec(b_k.T, lam)
 
-        _, per_step = jax.lax.scan(backward, h.g_yy @ dy_n, (h.a, h.b, g), reverse=True)
-        out = jnp.zeros(n, v.dtype).at[self.index].add(per_step)
+        _, per_step = jax.lax.scan(backward, matvec(h.g_yy, dy_n), (h.a, h.b, g), reverse=True)
+        out = add_at(n, self.index, per_step)
         return jnp.concatenate([out, jnp.zeros(self.n_s, v.dtype)])
 
     # ---- the certificate (the dense method's, kkt.py) ----------------------------------------------------------
@@ -273,7 +276,8 @@ class Riccati:
             f, ok_h = self.factor(h, sigma + delta_w, jac, jnp.full(m, rho, dtype))
             if m:
                 hinv_at = self.solve_h(f, jac.T)
-                chol_s, ok_s = _cholesky((1.0 - rho * delta_c) * (jac @ hinv_at) + delta_c * jnp.eye(m, dtype=dtype))
+                schur = (1.0 - rho * delta_c) * matmul(jac, hinv_at) + delta_c * jnp.eye(m, dtype=dtype)
+                chol_s, ok_s = _cholesky(schur)
                 ok_s = ok_s & ok_h
             else:
                 hinv_at, chol_s, ok_s = f.hinv_at, f.chol_s, ok_h
@@ -300,15 +304,15 @@ class Riccati:
         if not jac.shape[0]:
             return self.solve_h(f, r1), r2
         beta = 1.0 - f.rho * f.delta_c
-        t = self.solve_h(f, r1 + f.rho * (jac.T @ r2))
-        dl = _cho_solve(f.chol_s, (jac @ t - r2)[:, None])[:, 0]
-        return t - beta * (f.hinv_at @ dl), dl
+        t = self.solve_h(f, r1 + f.rho * matvec(jac.T, r2))
+        dl = _cho_solve(f.chol_s, (matvec(jac, t) - r2)[:, None])[:, 0]
+        return t - beta * matvec(f.hinv_at, dl), dl
 
     def solve(self, f: Factors, jac, r1, r2):
         """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``, one step of iterative refinement on ``K``."""
         dx, dl = self._once(f, jac, r1, r2)
-        res1 = self.hvp(f.hess, dx) + f.d * dx + jac.T @ dl - r1
-        res2 = jac @ dx - f.delta_c * dl - r2
+        res1 = self.hvp(f.hess, dx) + f.d * dx + matvec(jac.T, dl) - r1
+        res2 = matvec(jac, dx) - f.delta_c * dl - r2
         cx, cl = self._once(f, jac, res1, res2)
         return dx - cx, dl - cl
 
@@ -334,9 +338,10 @@ class Riccati:
     def solve_weighted(self, f: Factors, jac, weights, r1, r2):
         """``(d_x, d_lambda)`` of ``[H_s A^T; A -diag(1/weights)] (d_x, d_lambda) = (r1, r2)``, one refinement."""
         def once(s1, s2):
-            dx = self.solve_h(f, s1 + jac.T @ (weights * s2))
-            return dx, weights * (jac @ dx - s2)
+            dx = self.solve_h(f, s1 + matvec(jac.T, weights * s2))
+            return dx, weights * (matvec(jac, dx) - s2)
 
         dx, dl = once(r1, r2)
-        cx, cl = once(self.hvp(f.hess, dx) + f.d * dx + jac.T @ dl - r1, jac @ dx - dl / weights - r2)
+        cx, cl = once(self.hvp(f.hess, dx) + f.d * dx + matvec(jac.T, dl) - r1,
+                      matvec(jac, dx) - dl / weights - r2)
         return dx - cx, dl - cl
