@@ -20,7 +20,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["blocks", "array", "mm", "tr", "add", "scale", "cholesky", "cho_solve", "cholesky_array",
+__all__ = ["blocks", "array", "mm", "keep", "tr", "add", "scale", "cholesky", "cho_solve", "cholesky_array",
            "cho_solve_array"]
 
 SMALL = 8  # arrays up to this size are factorised unrolled (elementwise); larger ones by LAPACK
@@ -63,6 +63,15 @@ def array(m: list, like) -> jax.Array:
 
 def mm(a: list, b: list) -> list:
     return [[_sum([_mul(a[i][k], b[k][j]) for k in range(len(b))]) for j in range(len(b[0]))] for i in range(len(a))]
+
+
+def keep(*ms: list):
+    """``ms`` computed once: XLA:CPU would otherwise fuse every entry that reads them with the whole expression
+    behind them, and recompute shared products once per reader (an optimisation barrier; Python floats stay)."""
+    arrays = [x for m in ms for row in m for x in row if not isinstance(x, float)]
+    kept = iter(jax.lax.optimization_barrier(arrays))
+    out = tuple([[x if isinstance(x, float) else next(kept) for x in row] for row in m] for m in ms)
+    return out[0] if len(ms) == 1 else out
 
 
 def tr(a: list) -> list:

@@ -179,12 +179,12 @@ class Riccati:
         def backward(p, inp):
             a_top, b_top, qxx_k, qux_k, quu_k, du_k = inp
             a_k, b_k = self._full(a_top, b_top)
-            pa, pb = bl.mm(p, a_k), bl.mm(p, b_k)
+            pa, pb = bl.keep(bl.mm(p, a_k), bl.mm(p, b_k))
             r = bl.add(quu_k, bl.mm(bl.tr(b_k), pb))
             r = [[x + du_k[i] if i == j else x for j, x in enumerate(row)] for i, row in enumerate(r)]
-            s = bl.add(qux_k, bl.mm(bl.tr(b_k), pa))
+            s = bl.keep(bl.add(qux_k, bl.mm(bl.tr(b_k), pa)))
             low, ok = bl.cholesky(r, du_k[0])
-            gain = bl.scale(-1.0, bl.cho_solve(low, s))
+            gain = bl.keep(bl.scale(-1.0, bl.cho_solve(low, s)))
             p_new = bl.add(qxx_k, bl.mm(bl.tr(a_k), pa), bl.mm(bl.tr(s), gain))
             p_new = [[0.5 * (p_new[i][j] + p_new[j][i]) for j in range(len(p_new))] for i in range(len(p_new))]
             return p_new, (gain, [row[:i + 1] for i, row in enumerate(low)], ok)
@@ -213,7 +213,7 @@ class Riccati:
         def backward(p, inp):
             a_top, b_top, gain, low, ru = inp
             a_k, b_k = self._full(a_top, b_top)
-            hh = bl.add(bl.mm(bl.tr(b_k), p), bl.scale(-1.0, ru))
+            hh = bl.keep(bl.add(bl.mm(bl.tr(b_k), p), bl.scale(-1.0, ru)))
             ff = bl.scale(-1.0, bl.cho_solve(full_low(low), hh))
             return bl.add(bl.mm(bl.tr(a_k), p), bl.mm(bl.tr(gain), hh)), ff
 
@@ -225,7 +225,7 @@ class Riccati:
         def forward(x, inp):
             a_top, b_top, gain, ff_k = inp
             a_k, b_k = self._full(a_top, b_top)
-            u = bl.add(bl.mm(gain, x), ff_k)
+            u = bl.keep(bl.add(bl.mm(gain, x), ff_k))
             return bl.add(bl.mm(a_k, x), bl.mm(b_k, u)), u
 
         x_n, u = jax.lax.scan(forward, bl.blocks(x0), (f.at, f.bt, f.gain, ff))
