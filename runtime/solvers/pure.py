@@ -6,7 +6,8 @@ A pure solver turns a problem (an :class:`~myriad.runtime.nlp.NLP`, or a system 
 
 and this base writes the rest once: a single solve that measures compile and solve time apart, and
 :meth:`AbstractPureSolver.solve_batch`, one program for a batch of ``data``: ``jax.vmap`` of the same function, or
-``jax.lax.map`` (the members in turn) where the solver says vmap gains nothing (:meth:`batch_strategy`).
+``jax.lax.map`` (the members in turn) where the solver says vmap gains nothing (:meth:`batch_strategy`), vmapped in
+chunks one after another where the solver asks for them (:meth:`batch_chunk`).
 This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
 
 Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
@@ -69,13 +70,34 @@ class _Programs:
     mapped: ``strategy``)."""
 
     def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap",
-                 raw_batch: Callable[[Any, Any], Any] | None = None):
+                 raw_batch: Callable[[Any, Any], Any] | None = None, chunk: int | None = None):
         self.jitted = jax.jit(raw)
         self.single = CompiledFunction(raw, program_key(key, "single"))
         member = raw if raw_batch is None else raw_batch
-        batched = jax.vmap(member) if strategy == "vmap" else (
+        batched = _vmapped_in_chunks(member, chunk) if strategy == "vmap" else (
             lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0)))
-        self.batched = CompiledFunction(batched, program_key(key, f"batched:{strategy}"))
+        self.batched = CompiledFunction(batched, program_key(key, f"batched:{strategy}:{chunk}"))
+
+
+def _vmapped_in_chunks(member: Callable[[Any, Any], Any], chunk: int | None) -> Callable[[Any, Any], Any]:
+    """``jax.vmap(member)``, or, for a batch larger than ``chunk``, the members vmapped in equal chunks of at most
+    ``chunk``, one chunk after another (``jax.lax.map``'s ``batch_size``; the last member repeated to fill the last
+    chunk, its copies dropped): one program either way, and a chunk's loop stops with its own slowest member."""
+    def run(data, z0):
+        size = z0.shape[0]
+        if chunk is None or size <= chunk:
+            return jax.vmap(member)(data, z0)
+        count = -(-size // chunk)
+        width = -(-size // count)
+        pad = count * width - size
+
+        def padded(x):
+            return jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if pad else x
+
+        out = jax.lax.map(lambda one: member(*one), jax.tree.map(padded, (data, z0)), batch_size=width)
+        return jax.tree.map(lambda x: x[:size], out)
+
+    return run
 
 
 class AbstractPureSolver(abc.ABC):
@@ -119,6 +141,11 @@ class AbstractPureSolver(abc.ABC):
         ``jax.lax.map``: for a solver whose members' work does not vectorise on the backend at hand); ``problem``
         (when given) lets the answer depend on what the solver can exploit in it."""
         return "vmap"
+
+    def batch_chunk(self, problem: Any = None) -> int | None:
+        """A vmapped batch runs in chunks of at most this many members, one chunk after another, or all at once
+        (None, the default): on a CPU a chunk whose working set stays in cache can beat one wide batch."""
+        return None
 
     def pure_solve_batch(self, problem: Any) -> Callable[[Any, Any], Any]:
         """The pure solve that :meth:`solve_batch` maps or vmaps: :meth:`pure_solve`'s unless the solver has a form
@@ -189,7 +216,7 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
-        strategy = self.batch_strategy(problem)
-        return cached(problem, ("pure", self, strategy), lambda: _Programs(
+        strategy, chunk = self.batch_strategy(problem), self.batch_chunk(problem)
+        return cached(problem, ("pure", self, strategy, chunk), lambda: _Programs(
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
-            strategy, self.pure_solve_batch(problem)))
+            strategy, self.pure_solve_batch(problem), chunk))

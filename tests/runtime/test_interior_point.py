@@ -20,6 +20,7 @@ from myriad.runtime.data import ProblemData, default_data
 from myriad.runtime.nlp import NLP
 from myriad.runtime.solvers import InteriorPoint, Ipopt
 from myriad.runtime.solvers.base import canonical_data
+from myriad.runtime.solvers.interior_point.solver import CPU_CHUNK
 from myriad.runtime.status import Status
 
 jax.config.update("jax_enable_x64", True)
@@ -113,6 +114,14 @@ def test_batch_strategy_auto_maps_on_a_cpu_and_rejects_unknown_names():
     assert InteriorPoint().batch_strategy() == ("map" if jax.default_backend() == "cpu" else "vmap")
     with pytest.raises(ValueError, match="batch must be"):
         InteriorPoint(batch="pmap")
+    # Chunks: only a vmapped batch is cut into them (CPU_CHUNK members on a CPU by default).
+    assert InteriorPoint(batch="map").batch_chunk() is None
+    assert InteriorPoint(batch="vmap").batch_chunk() == (CPU_CHUNK if jax.default_backend() == "cpu" else None)
+    assert InteriorPoint(batch="vmap", chunk=None).batch_chunk() is None
+    assert InteriorPoint(batch="vmap", chunk=16).batch_chunk() == 16
+    for bad in (0, -3, 2.5, True, "big"):
+        with pytest.raises(ValueError, match="chunk must be"):
+            InteriorPoint(chunk=bad)
 
 
 def optimal_cost(solve_fn, z0):

@@ -195,3 +195,25 @@ def test_jitted_solve_fn_does_not_retrace_for_new_data():
         assert solve_fn._cache_size() == 1
     assert bool(first.converged) and bool(second.converged)
     assert not np.allclose(first.z, second.z)
+
+
+@pytest.mark.parametrize("chunk", [None, 1, 2, 3, 5, 8])
+def test_vmapped_in_chunks_equals_one_vmap(chunk):
+    """A batch in chunks (the last one padded with copies of the last member) gives each member what one vmap
+    gives it, also for members whose loops stop at different iterations."""
+    from myriad.runtime.solvers.pure import _vmapped_in_chunks
+
+    def member(data, z0):  # Newton's iteration for sqrt(data["a"]): a member-dependent number of steps
+        def body(c):
+            z, k = c
+            return 0.5 * (z + data["a"] / z), k + 1
+
+        return jax.lax.while_loop(lambda c: jnp.abs(c[0] ** 2 - data["a"]) > 1e-12 * data["a"], body, (z0, 0))
+
+    a = jnp.asarray([0.5, 2.0, 9.0, 1e4, 3.0])
+    z0 = jnp.ones(5)
+    expected = jax.vmap(member)({"a": a}, z0)
+    got = jax.jit(_vmapped_in_chunks(member, chunk))({"a": a}, z0)
+    np.testing.assert_array_equal(got[0], expected[0])
+    np.testing.assert_array_equal(got[1], expected[1])
+    assert len(set(np.asarray(got[1]).tolist())) > 1  # the members did stop at different iterations
