@@ -98,6 +98,11 @@ def test_step_and_inertia_against_dense(shared, negative):
     dx, dl = ric.solve(factors, jac, jnp.asarray(r1), jnp.asarray(r2))
     expected = np.linalg.solve(big, np.concatenate([r1, r2]))
     np.testing.assert_allclose(np.concatenate([dx, dl]), expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
+    # r1 solved with the Schur complement's columns: the same step (H^-1 (r1 + rho A^T r2), split by linearity).
+    pre, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0, jnp.asarray(r1))
+    dx_p, dl_p = ric.solve(pre, jac, jnp.asarray(r1), jnp.asarray(r2), presolved=True)
+    np.testing.assert_allclose(np.concatenate([dx_p, dl_p]), expected, rtol=1e-10,
+                               atol=1e-10 * np.abs(expected).max())
 
 
 def test_restoration_system_against_dense():

@@ -46,7 +46,7 @@ certificate above, whose ``delta_c`` handles it. For few rows the reduced Hessia
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -154,8 +154,11 @@ def _solve_certified(f: Factors, jac, r1, r2):
     return t - beta * (f.hinv_at @ dl), dl
 
 
-def solve(f: Factors, jac: jax.Array, r1: jax.Array, r2: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``, with one step of iterative refinement on ``K``."""
+def solve(f: Factors, jac: jax.Array, r1: jax.Array, r2: jax.Array, presolved: bool = False
+          ) -> tuple[jax.Array, jax.Array]:
+    """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``, with one step of iterative refinement on ``K``.
+    ``presolved`` is the stage-wise method's (``riccati.py``) and changes nothing here: a dense solve is two
+    triangular solves."""
     dx, dl = _solve_once(f, jac, r1, r2)
     res1 = f.h_s @ dx + jac.T @ dl - r1
     res2 = jac @ dx - f.delta_c * dl - r2
@@ -173,7 +176,7 @@ class _Attempt(NamedTuple):
 
 
 def factorize_with_inertia(
-    hess: jax.Array, sigma: jax.Array, jac: jax.Array, mu: jax.Array, delta_w_last: jax.Array
+    hess: jax.Array, sigma: jax.Array, jac: jax.Array, mu: jax.Array, delta_w_last: jax.Array, r1: Any = None
 ) -> tuple[Factors, jax.Array, jax.Array]:
     """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC), by the null-space method for many rows and by
     the certificate of the module docstring otherwise.
@@ -182,9 +185,13 @@ def factorize_with_inertia(
     ``1e-4`` (or a third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a
     rank-deficient ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same ``delta_w``.
 
+    ``r1`` is the stage-wise method's (``riccati.py``: solved with the Schur complement's columns) and is not used
+    here.
+
     Returns:
         ``(factors, delta_w, ok)``; ``ok`` is False when no ``delta_w`` up to the maximum gave the right inertia.
     """
+    del r1
     base = hess + jnp.diag(sigma)
     n_x, m = hess.shape[0], jac.shape[0]
     if not uses_nullspace(n_x, m):

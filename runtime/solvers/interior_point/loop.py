@@ -217,9 +217,10 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                 gl, gu = gaps(x)
                 sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
                 grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
-                factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w)
                 r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
-                dx, dlam = solve(factors, pt.jac, r1, -pt.g)
+                factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w,
+                                                                      r1)
+                dx, dlam = solve(factors, pt.jac, r1, -pt.g, presolved=True)
                 dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
                 dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
                 tau = jnp.maximum(TAU_MIN, 1.0 - mu)
@@ -250,7 +251,7 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
                         # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
                         # every trial of every member; a loop runs only while some member needs it.
                         def corrected(c):
-                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]))
+                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]), presolved=True)
                             a_c = bounds.step_to_boundary(x, dx_c, tau)
                             return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
 
