@@ -3,7 +3,8 @@
 the same run. Prints figures only.
 
 ``solve_batch`` runs the batch as the solver's ``batch_strategy(nlp)`` says: InteriorPoint vmaps the members with
-its stage-wise (Riccati) Newton step where the NLP allows one (single shooting here) and otherwise maps over them
+its stage-wise (Riccati) Newton step where the NLP allows one (single shooting here; on a CPU in chunks of
+``InteriorPoint.batch_chunk()`` members, one after another) and otherwise maps over them
 (``jax.lax.map``, one after another in one program, dense Newton steps) on a CPU, and vmaps them on an accelerator;
 ``--compare`` adds a row with its other strategy, so what vectorising gains on this device is measured, not assumed.
 
@@ -185,8 +186,8 @@ def run_system(name, args) -> dict:
     if not published:
         print("  (no CasADi row: it poses the published setting only, --transcription single_shooting --grid 100)")
     its = np.array([s.iterations for s in batch])
-    print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (a vmapped loop runs "
-          f"until its last member stops)", flush=True)
+    print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (a vmapped loop, or "
+          f"chunk of members, runs until its last member stops)", flush=True)
     return {"system": name, "transcription": repr(tr), "batch": args.batch, "subset": subset,
             "iterations_median": float(np.median(its)), "iterations_max": int(its.max()),
             "rows": {k: {**{f: v for f, v in r.items() if f not in ("costs", "converged")},
