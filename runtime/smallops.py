@@ -73,23 +73,23 @@ def _column_major(index: np.ndarray) -> np.ndarray:
     return np.ravel(index, order="F")
 
 
+def _reversed(axis: int, k: int, ndim: int) -> list[int]:
+    """The permutation that reverses axes ``axis .. axis + k - 1`` (an index's axes, read column-major)."""
+    return list(range(axis)) + [axis + k - 1 - i for i in range(k)] + list(range(axis + k, ndim))
+
+
 def take(x, index, axis: int = 0):
     """``jnp.take(x, index, axis)`` for a static ``index`` (any shape, non-negative, in range)."""
     index = _static(index)
     axis = axis % x.ndim
     if index.size and (index.min() < 0 or index.max() >= x.shape[axis]):
         raise IndexError(f"take: index out of range for axis {axis} of size {x.shape[axis]}")
-    flat = _column_major(index)
     parts = [lax.slice_in_dim(x, start, start + (count - 1) * step + 1, stride=step, axis=axis)
-             for _, start, step, count in _runs(flat)]
-    out = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=axis) if parts else \
-        lax.slice_in_dim(x, 0, 0, axis=axis)
+             for _, start, step, count in _runs(_column_major(index))]
+    out = jnp.concatenate(parts, axis=axis) if parts else lax.slice_in_dim(x, 0, 0, axis=axis)
     # Undo the column-major order: reversed shape, then reversed axes.
-    shape = x.shape[:axis] + index.shape[::-1] + x.shape[axis + 1:]
-    out = jnp.reshape(out, shape)
-    k = index.ndim
-    perm = list(range(axis)) + [axis + k - 1 - i for i in range(k)] + list(range(axis + k, out.ndim))
-    return jnp.transpose(out, perm)
+    out = jnp.reshape(out, x.shape[:axis] + index.shape[::-1] + x.shape[axis + 1:])
+    return jnp.transpose(out, _reversed(axis, index.ndim, out.ndim))
 
 
 def add_at(size: int, index, values, axis: int = 0):
@@ -104,8 +104,8 @@ def add_at(size: int, index, values, axis: int = 0):
                          f"index's shape is {index.shape}")
     if index.size and (index.min() < 0 or index.max() >= size):
         raise IndexError(f"add_at: index out of range for size {size}")
-    perm = list(range(axis)) + [axis + k - 1 - i for i in range(k)] + list(range(axis + k, values.ndim))
-    flat = jnp.reshape(jnp.transpose(values, perm), values.shape[:axis] + (index.size,) + values.shape[axis + k:])
+    flat = jnp.reshape(jnp.transpose(values, _reversed(axis, k, values.ndim)),
+                       values.shape[:axis] + (index.size,) + values.shape[axis + k:])
     zero = jnp.zeros((), values.dtype)
     total = None
     for pos, start, step, count in _runs(_column_major(index)):

@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..smallops import add_at, matmul, take
+from ..smallops import add_at, matmul, matvec, take
 
 __all__ = ["Stages", "stage_derivatives", "staged_derivatives"]
 
@@ -150,7 +150,7 @@ def _curvature(step, r: _Rollout, lam, objective_weight):
     weights = jnp.concatenate([jnp.reshape(jnp.asarray(objective_weight, r.y_n.dtype), (1,)), lam])
     n_y = r.y_n.shape[0]
     g_yy = jax.hessian(lambda y: weights @ r.stacked(y))(r.y_n)
-    mu = jnp.sum(weights[None, :, None] * r.adj, axis=1)  # mu[k] = mu_{k+1}
+    mu = matvec(jnp.swapaxes(r.adj, 1, 2), weights)  # mu[k] = mu_{k+1}
 
     def curvature(k, y, vk, mu_k):
         return jax.hessian(lambda yv: jnp.sum(mu_k * step(k, yv[:n_y], yv[n_y:])))(jnp.concatenate([y, vk]))
