@@ -14,9 +14,13 @@ parameters there). The one-at-a-time rates are measured on the first ``--subset`
 whole batch (the output says so). Compile and build time is reported separately and excluded from every rate. JAX's
 default device is used (a GPU where there is one); set JAX_PLATFORMS=cpu to force the CPU.
 
+On a CPU the batch is spread over ``--host-devices`` host devices (default: the machine's cores; JAX sees one
+unless ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` is set before it starts, which this script does), each
+a thread solving its share: the one-at-a-time rows use one core, as IPOPT does.
+
 Usage: python bench/batch_throughput.py [--systems mould_fungicide epidemic] [--solver interior_point]
                                         [--transcription single_shooting] [--grid 100] [--batch 1024]
-                                        [--subset 32] [--spread 0.1] [--compare] [--json FILE]
+                                        [--subset 32] [--spread 0.1] [--compare] [--host-devices N] [--json FILE]
 """
 
 from __future__ import annotations
@@ -35,6 +39,23 @@ from pathlib import Path
 # (worst 1.5 s) with its default threads against 1 ms (worst 16 ms) with one. IPOPT's own BLAS (Debian's
 # openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+def _host_devices(argv) -> int:
+    """``--host-devices`` (default: this machine's cores), read before JAX starts: the batch is spread over that many
+    host devices, each a thread running its share (``solve_batch`` splits a batch over the default backend's
+    devices). JAX sees one host device unless told otherwise, so the flag must be in XLA_FLAGS before it loads."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--host-devices", type=int, default=os.cpu_count() or 1)
+    count = pre.parse_known_args(argv)[0].host_devices
+    if count < 1:
+        raise SystemExit(f"--host-devices must be at least 1, got {count}")
+    return count
+
+
+if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count="
+                               + str(_host_devices(sys.argv[1:]))).strip()
 
 import jax  # noqa: E402
 
@@ -208,6 +229,8 @@ def main(argv=None) -> int:
     ap.add_argument("--compare", action="store_true",
                     help="also the solver's other batch strategy (vmap against map), where it has one")
     ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--host-devices", type=int, default=os.cpu_count() or 1,
+                    help="host devices (threads) a CPU batch is spread over; 1 for one (read before JAX starts)")
     args = ap.parse_args(argv)
     print(f"device: {jax.devices()} (jax {jax.__version__}); host CPU: {_machine()}")
     records = [run_system(name, args) for name in args.systems]

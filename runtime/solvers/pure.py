@@ -67,7 +67,7 @@ class ScaledEvaluation:
 
 class _Programs:
     """The jitted solve of one (problem, solver) pair: for callers, for one member, and for a batch (vmapped, or
-    mapped: ``strategy``)."""
+    mapped: ``strategy``; spread over the default backend's ``devices`` when there are several)."""
 
     def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap",
                  raw_batch: Callable[[Any, Any], Any] | None = None, chunk: int | None = None):
@@ -76,7 +76,34 @@ class _Programs:
         member = raw if raw_batch is None else raw_batch
         batched = _vmapped_in_chunks(member, chunk) if strategy == "vmap" else (
             lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0)))
-        self.batched = CompiledFunction(batched, program_key(key, f"batched:{strategy}:{chunk}"))
+        # A program for several devices is not kept in the program store: an exported one can only be called with
+        # its inputs already placed on those devices (the host's arrays are not).
+        devices = jax.devices()
+        self.batched = CompiledFunction(_across(batched, devices),
+                                        program_key(key, f"batched:{strategy}:{chunk}") if len(devices) < 2 else None)
+
+
+def _across(batched: Callable[[Any, Any], Any], devices: list) -> Callable[[Any, Any], Any]:
+    """``batched`` with the batch split evenly over ``devices`` (``jax.shard_map``; the last member repeated to fill
+    the last share, its copies dropped), each device running ``batched`` on its share at the same time. One device:
+    ``batched`` itself. On a CPU, JAX sees one device unless told otherwise before it starts
+    (``XLA_FLAGS=--xla_force_host_platform_device_count=N``: then each of N host threads runs its share)."""
+    if len(devices) < 2:
+        return batched
+    mesh = jax.sharding.Mesh(np.array(devices), ("members",))
+    spec = jax.sharding.PartitionSpec("members")
+
+    def run(data, z0):
+        size, count = z0.shape[0], len(devices)
+        if size < count:
+            return batched(data, z0)
+        pad = -size % count
+        padded = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if pad else x,
+                              (data, z0))
+        out = jax.shard_map(batched, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)(*padded)
+        return jax.tree.map(lambda x: x[:size], out)
+
+    return run
 
 
 def _vmapped_in_chunks(member: Callable[[Any, Any], Any], chunk: int | None) -> Callable[[Any, Any], Any]:
