@@ -32,6 +32,9 @@ SCRIPT = textwrap.dedent("""
             np.testing.assert_array_equal(got[0], expected[0])
             np.testing.assert_array_equal(got[1], expected[1])
 
+    from myriad.runtime.solvers.interior_point.solver import CPU_CHUNK_SHARED
+    assert InteriorPoint(batch="vmap").batch_chunk() == CPU_CHUNK_SHARED  # each device's chunk: shared caches
+
     # The wiring: solve_batch compiles one program for both devices; every member matches its own solve.
     system = load("simple_case")
     x0 = np.array([[0.9], [1.0], [1.1]])

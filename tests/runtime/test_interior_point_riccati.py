@@ -21,7 +21,7 @@ from myriad.runtime.solvers import InteriorPoint, Ipopt
 from myriad.runtime.solvers.base import ScaledProblem
 from myriad.runtime.solvers.interior_point import kkt
 from myriad.runtime.solvers.interior_point.problem import Layout
-from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain
+from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain, residual_ratio
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
@@ -103,6 +103,30 @@ def test_step_and_inertia_against_dense(shared, negative):
     dx_p, dl_p = ric.solve(pre, jac, jnp.asarray(r1), jnp.asarray(r2), presolved=True)
     np.testing.assert_allclose(np.concatenate([dx_p, dl_p]), expected, rtol=1e-10,
                                atol=1e-10 * np.abs(expected).max())
+
+
+def test_refinement_only_where_the_residual_asks():
+    """The refinement step is taken where IPOPT's residual ratio exceeds 1e-10: factors of a nearby matrix (Sigma off
+    by 1e-6 relative) leave a residual of that size, which one step reduces to its square; exact factors need none."""
+    ric, stages, hess, sigma, jac = _random_stages(0, shared="heun", negative=0.0)
+    n_x, m = hess.shape[0], jac.shape[0]
+    rng = np.random.default_rng(2)
+    r1, r2 = rng.standard_normal(n_x), rng.standard_normal(m)
+    exact, delta_w, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0)
+    near, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma * (1 + 1e-6), jac, 1e-3, 0.0)
+    near = near._replace(d=exact.d)  # the residual is measured against the exact matrix
+    h_s = hess + np.diag(np.asarray(sigma)) + float(delta_w) * np.eye(n_x)
+    big = np.block([[h_s, np.asarray(jac).T], [np.asarray(jac), -float(exact.delta_c) * np.eye(m)]])
+    expected = np.linalg.solve(big, np.concatenate([r1, r2]))
+    once = np.concatenate(ric._once(near, jac, jnp.asarray(r1), jnp.asarray(r2)))
+    refined = np.concatenate(ric.solve(near, jac, jnp.asarray(r1), jnp.asarray(r2)))
+    scale = np.abs(expected).max()
+    assert np.abs(once - expected).max() > 1e-9 * scale  # the unrefined step is off ...
+    assert np.abs(refined - expected).max() < 1e-10 * scale  # ... and the refinement was taken
+    res = big @ np.concatenate(ric._once(exact, jac, jnp.asarray(r1), jnp.asarray(r2))) - np.concatenate([r1, r2])
+    ratio = residual_ratio((r1, r2), (expected[:n_x], expected[n_x:]), (res[:n_x], res[n_x:]))
+    assert float(ratio) < 1e-10  # exact factors: no refinement is needed
+    assert float(residual_ratio((np.zeros(2),), (np.zeros(2),), (np.array([3.0, -4.0]),))) == 4.0
 
 
 def test_restoration_system_against_dense():

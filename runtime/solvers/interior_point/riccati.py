@@ -34,7 +34,8 @@ eliminates the stages one at a time, so ``H_rho`` is positive definite exactly w
 block ``P_0^{ww} + D_0`` and ``T`` are (the Schur complements of a block elimination): the certificate. A solve is
 one backward pass for the linear terms and one forward pass. ``m`` is small (terminal rows), so ``S = (1 - rho
 delta_c) A H_rho^{-1} A^T + delta_c I`` comes from ``m`` more solves, all at once. One step of iterative refinement
-on ``K`` uses the stage-wise product ``H_s v`` (a forward and an adjoint pass).
+on ``K`` uses the stage-wise product ``H_s v`` (a forward and an adjoint pass) for the residual, and is taken
+where IPOPT's residual ratio exceeds 1e-10 (:meth:`Riccati.solve`).
 
 Why: under ``vmap`` over a batch, a dense ``n x n`` Cholesky per member does not vectorise on a CPU, while each
 stage of the recursion is a few products of ``(n_y + c)``-sized matrices on the whole batch at once. The small
@@ -64,7 +65,19 @@ from .rules import (
     inertia_schedule,
 )
 
-__all__ = ["StageHessian", "Riccati", "chain"]
+__all__ = ["StageHessian", "Riccati", "chain", "residual_ratio"]
+
+# IPOPT's residual_ratio_max and the max_cond of its residual ratio (PDFullSpaceSolver).
+RESIDUAL_RATIO_MAX, MAX_COND = 1e-10, 1e6
+
+
+def residual_ratio(rhs, sol, res) -> jax.Array:
+    """IPOPT's measure of a linear solve's accuracy: ``||res|| / (min(||rhs||, max_cond ||sol||) + ||sol||)`` in the
+    infinity norm over all blocks (``||res||`` itself when the right-hand side and solution are both 0)."""
+    norm = lambda vs: jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in vs]))  # noqa: E731
+    n_rhs, n_sol, n_res = norm(rhs), norm(sol), norm(res)
+    scale = jnp.minimum(n_rhs, MAX_COND * n_sol) + n_sol
+    return jnp.where(n_rhs + n_sol == 0.0, n_res, n_res / jnp.where(scale > 0.0, scale, 1.0))
 
 class StageHessian(NamedTuple):
     """The scaled barrier problem's Hessian ``H`` (of ``sigma F + lambda^T g`` in ``x = (w, s)``), as stages."""
@@ -320,13 +333,24 @@ class Riccati:
         return t - beta * matvec(f.hinv_at, dl), dl
 
     def solve(self, f: Factors, jac, r1, r2, presolved=False):
-        """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``, one step of iterative refinement on ``K``;
-        ``presolved``: ``r1`` is the one given to :meth:`factorize_with_inertia`."""
+        """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``; ``presolved``: ``r1`` is the one given to
+        :meth:`factorize_with_inertia`.
+
+        One step of iterative refinement on ``K`` where the residual ratio exceeds IPOPT's ``residual_ratio_max``
+        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its two sweeps run only when
+        some member needs them. Usually none does; a large ``rho`` of the certificate is what costs accuracy."""
         dx, dl = self._once(f, jac, r1, r2, presolved)
         res1 = self.hvp(f.hess, dx) + f.d * dx + matvec(jac.T, dl) - r1
         res2 = matvec(jac, dx) - f.delta_c * dl - r2
-        cx, cl = self._once(f, jac, res1, res2)
-        return dx - cx, dl - cl
+
+        def refine(c):
+            _, dx_, dl_ = c
+            cx, cl = self._once(f, jac, res1, res2)
+            return jnp.array(False), dx_ - cx, dl_ - cl
+
+        needed = residual_ratio((r1, r2), (dx, dl), (res1, res2)) > RESIDUAL_RATIO_MAX
+        _, dx, dl = jax.lax.while_loop(lambda c: c[0], refine, (needed, dx, dl))
+        return dx, dl
 
     # ---- the restoration phase's system ------------------------------------------------------------------------
 
