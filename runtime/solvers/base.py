@@ -37,6 +37,7 @@ __all__ = [
     "cached",
     "canonical_data",
     "constraint_violation",
+    "constraint_violations",
     "split_constraints",
 ]
 
@@ -90,16 +91,22 @@ def constraint_violation(nlp: NLP, z: Any, c: Any | None) -> float:
         c: ``c(z)`` (n_constraints,), or None when the NLP has no constraints.
     """
     z = np.asarray(z, dtype=np.float64)
-    parts = [np.zeros(1), nlp.z_lower - z, z - nlp.z_upper]
+    return float(constraint_violations(nlp, z[None], None if c is None else np.asarray(c)[None])[0])
+
+
+def constraint_violations(nlp: NLP, z: Any, c: Any | None) -> np.ndarray:
+    """:func:`constraint_violation` of each row of ``z`` (B, n_variables) and ``c`` (B, n_constraints), at once."""
+    z = np.asarray(z, dtype=np.float64)
+    pairs = [(nlp.z_lower, z, nlp.z_upper)]
     if c is not None and nlp.n_constraints:
-        c = np.asarray(c, dtype=np.float64)
-        parts += [nlp.c_lower - c, c - nlp.c_upper]
-        if not np.all(np.isfinite(c)):
-            return float("inf")
-    if not np.all(np.isfinite(z)):
-        return float("inf")
-    with np.errstate(invalid="ignore"):  # inf - inf never occurs (finite z and c), but keep NumPy quiet regardless
-        return float(np.nanmax(np.concatenate(parts)))
+        pairs.append((nlp.c_lower, np.asarray(c, dtype=np.float64), nlp.c_upper))
+    worst = np.zeros(z.shape[0])
+    finite = np.ones(z.shape[0], bool)
+    with np.errstate(invalid="ignore"):  # a non-finite member's NaNs are replaced by inf below
+        for lower, value, upper in pairs:
+            finite &= np.isfinite(value).all(axis=1)
+            worst = np.maximum(worst, np.maximum(lower - value, value - upper).max(axis=1, initial=0.0))
+    return np.where(finite, worst, np.inf)
 
 
 def split_constraints(c_lower: np.ndarray, c_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -225,6 +232,14 @@ def _scaled_stages(derivatives: Callable, s: Any, index: np.ndarray) -> Callable
 
 
 # ---- compiled functions and the per-NLP cache ------------------------------------------------------------------
+
+
+def unstack(tree: Any, size: int) -> list:
+    """``[tree[i] for i < size]`` for a pytree of host arrays with a leading axis ``size``: flattened once (a
+    ``jax.tree.map`` per member was a tenth of a 1024-member batch's wall time on Mould Fungicide)."""
+    leaves, treedef = jax.tree.flatten(tree)
+    leaves = [np.asarray(leaf) for leaf in leaves]
+    return [treedef.unflatten([leaf[i] for leaf in leaves]) for i in range(size)]
 
 
 def canonical_data(data: Any) -> Any:

@@ -18,7 +18,7 @@ from ..method import AbstractMethod
 from ..nlp import NLP
 from ..solution import Solution
 from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
-from ..solvers.base import CompiledFunction, program_key
+from ..solvers.base import CompiledFunction, program_key, unstack
 from ..system import System
 from .error import REFERENCE_SUBSTEPS, estimate, interval_errors
 
@@ -138,10 +138,11 @@ class AbstractTranscription(AbstractMethod):
             )
         nlp = transcribe(system, self)
         results = solver.solve_batch(nlp, data)
-        host = jax.device_get(data)  # slice on the host: per-problem device slicing dominated small batches
+        # Slice on the host: per-problem device slicing dominated small batches.
+        members = unstack(jax.device_get(data), len(results))
         z = np.stack([np.asarray(res.z, dtype=np.float64) for res in results])
         trajectories = _trajectories(system, self, nlp, z, data)
-        return [_solution(system, self, solver, nlp, res, jax.tree.map(lambda a, i=i: a[i], host), trajectories[i])
+        return [_solution(system, self, solver, nlp, res, members[i], trajectories[i])
                 for i, res in enumerate(results)]
 
 

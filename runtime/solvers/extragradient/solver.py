@@ -168,7 +168,7 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
         return self._compiled(nlp).prepare_evaluation(z0, data)
 
     def batch_values(self, nlp: NLP, out: ExtragradientSolution, batched_data: Any) -> list:
-        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data)
+        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
 
     def report(self, nlp: NLP, out: ExtragradientSolution, data: Any, compile_seconds: float,
                solve_seconds: float, values: tuple | None = None) -> NLPResult:
@@ -179,8 +179,11 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
         """
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective, c = fns.values(z, data) if values is None else values
-        violation = constraint_violation(nlp, z, c)
+        if values is None:
+            objective, c = fns.values(z, data)
+            violation = constraint_violation(nlp, z, c)
+        else:  # the batch's (batch_values)
+            objective, c, violation = values
         converged = bool(out.converged) and np.isfinite(objective)
         if converged:
             status = Status.CONVERGED

@@ -178,7 +178,7 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         return self._compiled(nlp).prepare_evaluation(z0, data)
 
     def batch_values(self, nlp: NLP, out: InteriorPointSolution, batched_data: Any) -> list:
-        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data)
+        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
 
     def report(self, nlp: NLP, out: InteriorPointSolution, data: Any, compile_seconds: float,
                solve_seconds: float, values: tuple | None = None) -> NLPResult:
@@ -186,8 +186,11 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         the loop converged *and* the host's violation and objective agree (finite, within ``constr_viol_tol``)."""
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
-        objective, c = fns.values(z, data) if values is None else values
-        violation = constraint_violation(nlp, z, c)
+        if values is None:
+            objective, c = fns.values(z, data)
+            violation = constraint_violation(nlp, z, c)
+        else:  # the batch's (batch_values)
+            objective, c, violation = values
         status = Status(int(out.status))
         if status is Status.CONVERGED and not (np.isfinite(objective) and violation <= self.constr_viol_tol):
             status = Status.NOT_CONVERGED
