@@ -6,6 +6,7 @@ concrete solver in this package is registered. See README.md for adding one.
 
 from .base import AbstractNLPSolver as AbstractNLPSolver
 from .base import constraint_violation as constraint_violation
+from .base import constraint_violations as constraint_violations
 from .extragradient import Extragradient as Extragradient
 from .extragradient import ExtragradientSolution as ExtragradientSolution
 from .interior_point import InteriorPoint as InteriorPoint
@@ -32,4 +33,5 @@ __all__ = [
     "SLSQP",
     "SOLVERS",
     "constraint_violation",
+    "constraint_violations",
 ]

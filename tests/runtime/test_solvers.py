@@ -27,6 +27,7 @@ from myriad.runtime.solvers import (
     InteriorPoint,
     Ipopt,
     constraint_violation,
+    constraint_violations,
 )
 from myriad.runtime.solvers.ipopt import judge
 from myriad.runtime.solvers.sparse import HessianColouring, compressed_jacobian_fn, hvp_batch_fn
@@ -344,6 +345,11 @@ def test_constraint_violation_measure():
     assert constraint_violation(nlp, np.array([0.0, 0.0]), np.array([0.3])) == pytest.approx(0.3)
     assert constraint_violation(nlp, np.array([5.5, 0.0]), np.array([0.3])) == pytest.approx(0.5)
     assert constraint_violation(nlp, np.array([np.nan, 0.0]), np.array([0.0])) == float("inf")
+    assert constraint_violation(nlp, np.array([0.0, 0.0]), np.array([np.inf])) == float("inf")
+    # A batch at once (solve_batch's report): each row's own measure.
+    z = np.array([[0.0, 0.0], [0.0, 0.0], [5.5, 0.0], [np.nan, 0.0], [-6.0, 0.0]])
+    c = np.array([[-1.0], [0.3], [0.3], [0.0], [-2.0]])
+    np.testing.assert_array_equal(constraint_violations(nlp, z, c), [0.0, 0.3, 0.5, np.inf, 1.0])
 
 
 # ---- compilation is cached per NLP ---------------------------------------------------------------------------------
