@@ -21,7 +21,8 @@ from myriad.runtime.solvers import InteriorPoint, Ipopt
 from myriad.runtime.solvers.base import ScaledProblem
 from myriad.runtime.solvers.interior_point import kkt
 from myriad.runtime.solvers.interior_point.problem import Layout
-from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain, residual_ratio
+from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain
+from myriad.runtime.solvers.interior_point.rules import residual_ratio
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 

@@ -60,24 +60,15 @@ from .rules import (
     DELTA_C_EXPONENT,
     DELTA_W_MAX,
     MAX_ATTEMPTS,
+    RESIDUAL_RATIO_MAX,
     RHO_RETRIES,
     RHO_RETRY,
     inertia_schedule,
+    residual_ratio,
 )
 
-__all__ = ["StageHessian", "Riccati", "chain", "residual_ratio"]
+__all__ = ["StageHessian", "Riccati", "chain"]
 
-# IPOPT's residual_ratio_max and the max_cond of its residual ratio (PDFullSpaceSolver).
-RESIDUAL_RATIO_MAX, MAX_COND = 1e-10, 1e6
-
-
-def residual_ratio(rhs, sol, res) -> jax.Array:
-    """IPOPT's measure of a linear solve's accuracy: ``||res|| / (min(||rhs||, max_cond ||sol||) + ||sol||)`` in the
-    infinity norm over all blocks (``||res||`` itself when the right-hand side and solution are both 0)."""
-    norm = lambda vs: jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in vs]))  # noqa: E731
-    n_rhs, n_sol, n_res = norm(rhs), norm(sol), norm(res)
-    scale = jnp.minimum(n_rhs, MAX_COND * n_sol) + n_sol
-    return jnp.where(n_rhs + n_sol == 0.0, n_res, n_res / jnp.where(scale > 0.0, scale, 1.0))
 
 class StageHessian(NamedTuple):
     """The scaled barrier problem's Hessian ``H`` (of ``sigma F + lambda^T g`` in ``x = (w, s)``), as stages."""
@@ -182,60 +173,66 @@ class Riccati:
         cross = matmul(g_w.T, j_s)
         return p_yy - matmul(cross, _cho_solve(chol_t, cross.T)), chol_t, cross, ok
 
-    def factor(self, h: StageHessian, d, jac, weights) -> tuple[Factors, jax.Array]:
-        """``H + diag(d) + A^T diag(weights) A`` factorised, and whether it is positive definite."""
+    def factor(self, h: StageHessian, d, jac, weights, r=None) -> tuple[Factors, jax.Array, Any]:
+        """``H + diag(d) + A^T diag(weights) A`` factorised, whether it is positive definite, and its solve of the
+        columns ``r`` (n_x, k) when given (else None): their linear terms ride the factorisation's backward pass, so
+        the solve costs one forward pass more, where :meth:`solve_h` after it would cost two."""
         at, bt, qxx, qux, quu = self._stages(h)
         n_y, c, nu, dtype = h.a.shape[1], self.c, self.nu, h.a.dtype
         p_yy, chol_t, cross, ok_t = self._terminal(h, d, jac, weights)
         p_n = jnp.zeros((n_y + c, n_y + c), dtype).at[:n_y, :n_y].set(p_yy)
         d_u = take(d, self.later)  # (N, nu)
+        rhs = None if r is None else self._rhs(chol_t, cross, r, n_y)
 
-        def backward(p, inp):
-            a_top, b_top, qxx_k, qux_k, quu_k, du_k = inp
+        def backward(carry, inp):
+            p, lin = carry
+            a_top, b_top, qxx_k, qux_k, quu_k, du_k = inp[:6]
             a_k, b_k = self._full(a_top, b_top)
             pa, pb = bl.keep(bl.mm(p, a_k), bl.mm(p, b_k))
-            r = bl.add(quu_k, bl.mm(bl.tr(b_k), pb))
-            r = [[x + du_k[i] if i == j else x for j, x in enumerate(row)] for i, row in enumerate(r)]
-            s = bl.keep(bl.add(qux_k, bl.mm(bl.tr(b_k), pa)))
-            low, ok = bl.cholesky(r, du_k[0])
-            gain = bl.keep(bl.scale(-1.0, bl.cho_solve(low, s)))
-            p_new = bl.add(qxx_k, bl.mm(bl.tr(a_k), pa), bl.mm(bl.tr(s), gain))
+            r_k = bl.add(quu_k, bl.mm(bl.tr(b_k), pb))
+            r_k = [[x + du_k[i] if i == j else x for j, x in enumerate(row)] for i, row in enumerate(r_k)]
+            s_k = bl.keep(bl.add(qux_k, bl.mm(bl.tr(b_k), pa)))
+            low, ok = bl.cholesky(r_k, du_k[0])
+            gain = bl.keep(bl.scale(-1.0, bl.cho_solve(low, s_k)))
+            p_new = bl.add(qxx_k, bl.mm(bl.tr(a_k), pa), bl.mm(bl.tr(s_k), gain))
             p_new = [[0.5 * (p_new[i][j] + p_new[j][i]) for j in range(len(p_new))] for i in range(len(p_new))]
-            return p_new, (gain, [row[:i + 1] for i, row in enumerate(low)], ok)
+            lin, ff = (lin, None) if rhs is None else self._linear_step(lin, a_k, b_k, gain, low, inp[6])
+            return (p_new, lin), (gain, [row[:i + 1] for i, row in enumerate(low)], ok, ff)
 
-        inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)])
-        p0, (gain, chol_r, ok_r) = jax.lax.scan(backward, bl.blocks(p_n), inputs, reverse=True)
+        inputs = (at, bt, qxx, qux, quu, [d_u[:, i] for i in range(nu)]) + (() if rhs is None else (rhs[3],))
+        lin_n = None if rhs is None else bl.blocks(rhs[2])
+        (p0, lin0), (gain, chol_r, ok_r, ff) = jax.lax.scan(backward, (bl.blocks(p_n), lin_n), inputs, reverse=True)
         p0_w = bl.array(p0, d_u[:, 0][0])[n_y:]
         chol_0, ok_0 = _cholesky(p0_w[:, n_y:] + jnp.diag(take(d, self.first)))
         zeros = jnp.zeros((), dtype)
         none = jnp.zeros((jac.shape[1], 0), dtype)
         f = Factors(h, d, at, bt, gain, chol_r, chol_0, p0_w, chol_t, cross, none, none, jnp.zeros((0, 0), dtype),
                     zeros, zeros)
-        return f, jnp.all(ok_r) & ok_0 & ok_t
+        solved = None if rhs is None else self._forward(f, lin0, ff, rhs, r)
+        return f, jnp.all(ok_r) & ok_0 & ok_t, solved
 
-    def solve_h(self, f: Factors, r):
-        """``H_rho^{-1} r`` for ``r`` (n_x,) or (n_x, k): one backward pass for the linear terms, one forward."""
-        vector = r.ndim == 1
-        r = r[:, None] if vector else r
-        n, n_y, k = self.n, f.hess.a.shape[1], r.shape[1]
-        r_w, r_s = r[:n], r[n:]
-        p_s = _cho_solve(f.chol_t, r_s) if self.n_s else r_s  # T^{-1} r_s
-        p_n = jnp.zeros((n_y + self.c, k), r.dtype).at[:n_y].set(matmul(f.cross, p_s))
-        r_later = take(r_w, self.later)  # (N, nu, k)
-        r_u = bl.blocks(r_later)  # (nu, k) blocks of (N,)
-        full_low = lambda low: [row + [0.0] * (len(low) - len(row)) for row in low]  # noqa: E731
+    def _rhs(self, chol_t, cross, r, n_y):
+        """What the backward pass for the columns ``r`` (n_x, k) starts from: ``(r_w, r_s, p_N, r_u)``, ``p_N`` the
+        terminal linear term (the slacks eliminated) and ``r_u`` the new decisions' rows as (nu, k) blocks of
+        (N,)."""
+        r_w, r_s = r[:self.n], r[self.n:]
+        p_s = _cho_solve(chol_t, r_s) if self.n_s else r_s  # T^{-1} r_s
+        p_n = jnp.zeros((n_y + self.c, r.shape[1]), r.dtype).at[:n_y].set(matmul(cross, p_s))
+        return r_w, r_s, p_n, bl.blocks(take(r_w, self.later))
 
-        def backward(p, inp):
-            a_top, b_top, gain, low, ru = inp
-            a_k, b_k = self._full(a_top, b_top)
-            hh = bl.keep(bl.add(bl.mm(bl.tr(b_k), p), bl.scale(-1.0, ru)))
-            ff = bl.scale(-1.0, bl.cho_solve(full_low(low), hh))
-            return bl.add(bl.mm(bl.tr(a_k), p), bl.mm(bl.tr(gain), hh)), ff
+    def _linear_step(self, p, a_k, b_k, gain, low, ru):
+        """One stage of the backward pass for the linear terms: ``(p_k, feedforward_k)`` from ``p_{k+1}``."""
+        hh = bl.keep(bl.add(bl.mm(bl.tr(b_k), p), bl.scale(-1.0, ru)))
+        ff = bl.scale(-1.0, bl.cho_solve(low, hh))
+        return bl.add(bl.mm(bl.tr(a_k), p), bl.mm(bl.tr(gain), hh)), ff
 
-        p0, ff = jax.lax.scan(backward, bl.blocks(p_n), (f.at, f.bt, f.gain, f.chol_r, r_u), reverse=True)
+    def _forward(self, f: Factors, p0, ff, rhs, r):
+        """The solve from the backward pass's ``p_0`` and feedforwards: the initial block, then one forward pass."""
+        n, n_y = self.n, f.hess.a.shape[1]
+        r_w, r_s = rhs[0], rhs[1]
         p0 = bl.array(p0, r[0, 0])
         w0 = -_cho_solve(f.chol_0, p0[n_y:] - take(r_w, self.first))
-        x0 = jnp.concatenate([jnp.zeros((n_y, k), r.dtype), w0])
+        x0 = jnp.concatenate([jnp.zeros((n_y, r.shape[1]), r.dtype), w0])
 
         def forward(x, inp):
             a_top, b_top, gain, ff_k = inp
@@ -244,12 +241,27 @@ class Riccati:
             return bl.add(bl.mm(a_k, x), bl.mm(b_k, u)), u
 
         x_n, u = jax.lax.scan(forward, bl.blocks(x0), (f.at, f.bt, f.gain, ff))
-        u = bl.array(u, r_later[:, 0, 0])  # (N, nu, k)
+        u = bl.array(u, r[0, 0])  # (N, nu, k)
         dw = add_at(n, self.first, w0) + add_at(n, self.later, u)  # w_0 and U_k are disjoint entries of w
-        out = dw
-        if self.n_s:
-            y_n = bl.array(x_n, r[0, 0])[:n_y]
-            out = jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - matmul(f.cross.T, y_n))])
+        if not self.n_s:
+            return dw
+        y_n = bl.array(x_n, r[0, 0])[:n_y]
+        return jnp.concatenate([dw, _cho_solve(f.chol_t, r_s - matmul(f.cross.T, y_n))])
+
+    def solve_h(self, f: Factors, r):
+        """``H_rho^{-1} r`` for ``r`` (n_x,) or (n_x, k): one backward pass for the linear terms, one forward."""
+        vector = r.ndim == 1
+        r = r[:, None] if vector else r
+        rhs = self._rhs(f.chol_t, f.cross, r, f.hess.a.shape[1])
+        full_low = lambda low: [row + [0.0] * (len(low) - len(row)) for row in low]  # noqa: E731
+
+        def backward(p, inp):
+            a_top, b_top, gain, low, ru = inp
+            a_k, b_k = self._full(a_top, b_top)
+            return self._linear_step(p, a_k, b_k, gain, full_low(low), ru)
+
+        p0, ff = jax.lax.scan(backward, bl.blocks(rhs[2]), (f.at, f.bt, f.gain, f.chol_r, rhs[3]), reverse=True)
+        out = self._forward(f, p0, ff, rhs, r)
         return out[:, 0] if vector else out
 
     def hvp(self, h: StageHessian, v):
@@ -294,9 +306,10 @@ class Riccati:
             k, delta_w, delta_c, _, _, _ = a
             rho = rho0 * RHO_RETRY ** jnp.minimum(k, RHO_RETRIES).astype(dtype)
             rho = jnp.where(delta_c > 0, jnp.minimum(rho, 1e-2 / jnp.maximum(delta_c, 1e-300)), rho)
-            f, ok_h = self.factor(h, sigma + delta_w, jac, jnp.full(m, rho, dtype))
             columns = ([jac.T] if m else []) + ([r1[:, None]] if r1 is not None else [])
-            solved = self.solve_h(f, jnp.concatenate(columns, axis=1)) if columns else f.hinv_at
+            f, ok_h, solved = self.factor(h, sigma + delta_w, jac, jnp.full(m, rho, dtype),
+                                          jnp.concatenate(columns, axis=1) if columns else None)
+            solved = f.hinv_at if solved is None else solved
             hinv_at, hinv_r1 = solved[:, :m], solved[:, m:]
             if m:
                 schur = (1.0 - rho * delta_c) * matmul(jac, hinv_at) + delta_c * jnp.eye(m, dtype=dtype)
@@ -359,7 +372,7 @@ class Riccati:
         schedule (the restoration phase's exact inertia test): ``(factors, delta_w, ok)``."""
         def attempt(a):
             k, delta_w, _, _ = a
-            f, ok = self.factor(h, d + delta_w, jac, weights)
+            f, ok, _ = self.factor(h, d + delta_w, jac, weights)
             grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
             return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, f
 

@@ -15,7 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule"]
+__all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule",
+           "residual_ratio"]
 
 # IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
 KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -115,3 +116,16 @@ def inertia_schedule(k, delta_w, delta_w_last, first_grown):
     start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
     grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
     return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
+
+
+# IPOPT's residual_ratio_max and the max_cond of its residual ratio (PDFullSpaceSolver).
+RESIDUAL_RATIO_MAX, MAX_COND = 1e-10, 1e6
+
+
+def residual_ratio(rhs, sol, res) -> jax.Array:
+    """IPOPT's measure of a linear solve's accuracy: ``||res|| / (min(||rhs||, max_cond ||sol||) + ||sol||)`` in the
+    infinity norm over all blocks (``||res||`` itself when the right-hand side and solution are both 0)."""
+    norm = lambda vs: jnp.max(jnp.stack([jnp.max(jnp.abs(v), initial=0.0) for v in vs]))  # noqa: E731
+    n_rhs, n_sol, n_res = norm(rhs), norm(sol), norm(res)
+    scale = jnp.minimum(n_rhs, MAX_COND * n_sol) + n_sol
+    return jnp.where(n_rhs + n_sol == 0.0, n_res, n_res / jnp.where(scale > 0.0, scale, 1.0))
