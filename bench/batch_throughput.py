@@ -20,7 +20,8 @@ a thread solving its share: the one-at-a-time rows use one core, as IPOPT does.
 
 Usage: python bench/batch_throughput.py [--systems mould_fungicide epidemic] [--solver interior_point]
                                         [--transcription single_shooting] [--grid 100] [--batch 1024]
-                                        [--subset 32] [--spread 0.1] [--compare] [--host-devices N] [--json FILE]
+                                        [--subset 32] [--spread 0.1] [--compare] [--host-devices N] [--repeat 3]
+                                        [--json FILE]
 """
 
 from __future__ import annotations
@@ -157,61 +158,74 @@ def run_system(name, args) -> dict:
           f"{1 + args.spread:g}) (seed {args.seed}); batched solver {solver!r}", flush=True)
 
     # Batched: one program (vmapped or mapped: the solver's batch_strategy). The first call compiles and traces (a
-    # batch of other members, same shape: the "compile s" column is its whole wall time); the second is timed, from
+    # batch of other members, same shape: the "compile s" column is its whole wall time); later calls are timed, from
     # the host's arrays to the B Solutions.
     warm_p, warm_x = make_batch(system, args.batch, args.spread, args.seed + 1)
-    t0 = time.perf_counter()
-    solve_batch(system, tr, solver, params=warm_p, x0=warm_x)
-    compile_b = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    batch = solve_batch(system, tr, solver, params=params, x0=x0)
-    wall_b = time.perf_counter() - t0
+
+    def batched(s):
+        t0 = time.perf_counter()
+        solve_batch(system, tr, s, params=warm_p, x0=warm_x)
+        compile_s = time.perf_counter() - t0
+
+        def measure():
+            t0 = time.perf_counter()
+            out = solve_batch(system, tr, s, params=params, x0=x0)
+            return {"costs": [m.cost for m in out], "converged": [m.converged for m in out],
+                    "iterations": [m.iterations for m in out], "compile_seconds": compile_s,
+                    "seconds": time.perf_counter() - t0, "n": args.batch}
+        return measure
+
     from myriad.runtime.solve import transcribe
 
     nlp = transcribe(system, tr)
     strategy = solver.batch_strategy(nlp)
     main_row = f"{args.solver}, solve_batch ({strategy})"
-    rows = {main_row: {
-        "costs": [s.cost for s in batch], "converged": [s.converged for s in batch], "compile_seconds": compile_b,
-        "seconds": wall_b, "n": args.batch}}
+    measures = {main_row: batched(solver)}
     if args.compare and hasattr(solver, "batch"):
         other = dataclasses.replace(solver, batch="vmap" if strategy == "map" else "map")
-        t0 = time.perf_counter()
-        solve_batch(system, tr, other, params=warm_p, x0=warm_x)
-        compile_o = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        batch_o = solve_batch(system, tr, other, params=params, x0=x0)
-        rows[f"{args.solver}, solve_batch ({other.batch_strategy(nlp)})"] = {
-            "costs": [s.cost for s in batch_o], "converged": [s.converged for s in batch_o],
-            "compile_seconds": compile_o, "seconds": time.perf_counter() - t0, "n": args.batch}
-    rows["ipopt (cyipopt), one at a time"] = {**one_at_a_time(system, tr, Ipopt(), params, x0, subset), "n": subset}
+        measures[f"{args.solver}, solve_batch ({other.batch_strategy(nlp)})"] = batched(other)
+    measures["ipopt (cyipopt), one at a time"] = lambda: {
+        **one_at_a_time(system, tr, Ipopt(), params, x0, subset), "n": subset}
     published = args.transcription == "single_shooting" and args.grid == 100
     if published:
-        rows["CasADi + IPOPT, one at a time"] = {**casadi_one_at_a_time(system, name, params, x0, subset),
-                                                 "n": subset}
-    print(f"{'':36s} {'problems/s':>11s} {'wall s':>9s} {'compile s':>10s} {'converged':>12s}  (wall: warm, "
-          f"Python overhead included; compile s: the first, untimed call)")
+        measures["CasADi + IPOPT, one at a time"] = lambda: {
+            **casadi_one_at_a_time(system, name, params, x0, subset), "n": subset}
+    # Rounds: every row once a round, side by side, so that a ratio is taken between neighbours in time (the host's
+    # speed drifts); each row's figure is its median round, the spread its slowest and fastest.
+    rows: dict = {}
+    for _ in range(args.repeat):
+        for label, measure in measures.items():
+            r = measure()
+            rows.setdefault(label, {**r, "round_seconds": []})["round_seconds"].append(r["seconds"])
+    print(f"{'':36s} {'problems/s':>11s} {'(range)':>15s} {'compile s':>10s} {'converged':>12s}  (median of "
+          f"{args.repeat} rounds; warm, Python overhead included; compile s: the first, untimed call)")
     for label, r in rows.items():
+        rates = [r["n"] / sec for sec in r["round_seconds"]]
+        r["seconds"] = float(np.median(r["round_seconds"]))
         r["problems_per_second"] = r["n"] / r["seconds"]
-        print(f"{label:36s} {r['problems_per_second']:11.1f} {r['seconds']:9.2f} {r['compile_seconds']:10.2f} "
+        spread = f"{min(rates):.1f}-{max(rates):.1f}"
+        print(f"{label:36s} {r['problems_per_second']:11.1f} {spread:>15s} {r['compile_seconds']:10.2f} "
               f"{sum(r['converged']):5d}/{r['n']:<6d}")
     base = rows[main_row]
     for label, r in list(rows.items())[1:]:
         pairs = [_rel(a, b) for a, b, ca, cb in zip(base["costs"], r["costs"], base["converged"], r["converged"])
                  if ca and cb]
         worst = f"{max(pairs):.1e}" if pairs else "-"
-        print(f"  batched / {label}: {base['problems_per_second'] / r['problems_per_second']:.1f}x throughput; "
-              f"cost max relative difference {worst} over {len(pairs)} members converged on both sides "
+        ratios = [(base["n"] / sb) / (r["n"] / so) for sb, so in zip(base["round_seconds"], r["round_seconds"])]
+        r["ratios"] = ratios
+        print(f"  batched / {label}: {float(np.median(ratios)):.1f}x throughput (rounds: "
+              + ", ".join(f"{x:.1f}x" for x in ratios) + f"); cost max relative difference {worst} over "
+              f"{len(pairs)} members converged on both sides "
               + ("(all members)" if r["n"] == args.batch else
                  f"(one at a time: first {subset} of {args.batch}, extrapolated)"))
     if not published:
         print("  (no CasADi row: it poses the published setting only, --transcription single_shooting --grid 100)")
-    its = np.array([s.iterations for s in batch])
+    its = np.array(base["iterations"])
     print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (a vmapped loop, or "
           f"chunk of members, runs until its last member stops)", flush=True)
     return {"system": name, "transcription": repr(tr), "batch": args.batch, "subset": subset,
             "iterations_median": float(np.median(its)), "iterations_max": int(its.max()),
-            "rows": {k: {**{f: v for f, v in r.items() if f not in ("costs", "converged")},
+            "rows": {k: {**{f: v for f, v in r.items() if f not in ("costs", "converged", "iterations")},
                          "converged": int(sum(r["converged"]))} for k, r in rows.items()}}
 
 
@@ -229,9 +243,12 @@ def main(argv=None) -> int:
     ap.add_argument("--compare", action="store_true",
                     help="also the solver's other batch strategy (vmap against map), where it has one")
     ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--repeat", type=int, default=3, help="rounds: every row once a round, side by side")
     ap.add_argument("--host-devices", type=int, default=os.cpu_count() or 1,
                     help="host devices (threads) a CPU batch is spread over; 1 for one (read before JAX starts)")
     args = ap.parse_args(argv)
+    if args.repeat < 1 or args.batch < 1 or args.subset < 1:
+        ap.error("--repeat, --batch and --subset must be at least 1")
     print(f"device: {jax.devices()} (jax {jax.__version__}); host CPU: {_machine()}")
     records = [run_system(name, args) for name in args.systems]
     if args.json:
