@@ -99,9 +99,7 @@ def _across(batched: Callable[[Any, Any], Any], devices: list) -> Callable[[Any,
         size, count = z0.shape[0], len(devices)
         if size < count:
             return batched(data, z0)
-        pad = -size % count
-        padded = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if pad else x,
-                              (data, z0))
+        padded = _pad((data, z0), -size % count)
         out = jax.shard_map(batched, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)(*padded)
         return jax.tree.map(lambda x: x[:size], out)
 
@@ -118,15 +116,15 @@ def _vmapped_in_chunks(member: Callable[[Any, Any], Any], chunk: int | None) -> 
             return jax.vmap(member)(data, z0)
         count = -(-size // chunk)
         width = -(-size // count)
-        pad = count * width - size
-
-        def padded(x):
-            return jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]) if pad else x
-
-        out = jax.lax.map(lambda one: member(*one), jax.tree.map(padded, (data, z0)), batch_size=width)
+        out = jax.lax.map(lambda one: member(*one), _pad((data, z0), count * width - size), batch_size=width)
         return jax.tree.map(lambda x: x[:size], out)
 
     return run
+
+
+def _pad(tree: Any, pad: int) -> Any:
+    """Every leaf with its last member repeated ``pad`` more times (the filler of a last chunk or device share)."""
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]), tree) if pad else tree
 
 
 class AbstractPureSolver(abc.ABC):
