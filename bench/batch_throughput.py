@@ -3,9 +3,10 @@
 the same run. Prints figures only.
 
 ``solve_batch`` runs the batch as the solver's ``batch_strategy(nlp)`` says: InteriorPoint vmaps the members with
-its stage-wise (Riccati) Newton step where the NLP allows one (single shooting here; on a CPU in chunks of
-``InteriorPoint.batch_chunk()`` members, one after another) and otherwise maps over them
-(``jax.lax.map``, one after another in one program, dense Newton steps) on a CPU, and vmaps them on an accelerator;
+its stage-wise (Riccati) Newton step where the NLP allows one (single shooting here; on a CPU with
+``InteriorPoint.batch_chunk()`` members in flight, each stopped member's place taken by the next) and otherwise maps
+over them (``jax.lax.map``, one after another in one program, dense Newton steps) on a CPU, and vmaps them on an
+accelerator;
 ``--compare`` adds a row with its other strategy, so what vectorising gains on this device is measured, not assumed.
 
 The NLP is the published setting by default (single shooting, Heun, 100 control intervals), the one
@@ -178,12 +179,20 @@ def run_system(name, args) -> dict:
     from myriad.runtime.solve import transcribe
 
     nlp = transcribe(system, tr)
+    def how(s) -> str:
+        """The row's label: vmapped (at once, in chunks, or as a queue that refills stopped members' places) or
+        mapped."""
+        strategy, chunk = s.batch_strategy(nlp), s.batch_chunk(nlp)
+        if strategy != "vmap" or chunk is None:
+            return strategy
+        return f"vmap, {chunk} in flight" if s.batch_stepper(nlp) is not None else f"vmap, chunks of {chunk}"
+
     strategy = solver.batch_strategy(nlp)
-    main_row = f"{args.solver}, solve_batch ({strategy})"
+    main_row = f"{args.solver}, solve_batch ({how(solver)})"
     measures = {main_row: batched(solver)}
     if args.compare and hasattr(solver, "batch"):
         other = dataclasses.replace(solver, batch="vmap" if strategy == "map" else "map")
-        measures[f"{args.solver}, solve_batch ({other.batch_strategy(nlp)})"] = batched(other)
+        measures[f"{args.solver}, solve_batch ({how(other)})"] = batched(other)
     measures["ipopt (cyipopt), one at a time"] = lambda: {
         **one_at_a_time(system, tr, Ipopt(), params, x0, subset), "n": subset}
     published = args.transcription == "single_shooting" and args.grid == 100
@@ -221,8 +230,8 @@ def run_system(name, args) -> dict:
     if not published:
         print("  (no CasADi row: it poses the published setting only, --transcription single_shooting --grid 100)")
     its = np.array(base["iterations"])
-    print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (a vmapped loop, or "
-          f"chunk of members, runs until its last member stops)", flush=True)
+    print(f"  batched iterations per member: median {int(np.median(its))}, max {its.max()} (a vmapped loop runs "
+          f"until its last member stops; a queue refills stopped members' places)", flush=True)
     return {"system": name, "transcription": repr(tr), "batch": args.batch, "subset": subset,
             "iterations_median": float(np.median(its)), "iterations_max": int(its.max()),
             "rows": {k: {**{f: v for f, v in r.items() if f not in ("costs", "converged", "iterations")},

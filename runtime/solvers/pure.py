@@ -7,7 +7,9 @@ A pure solver turns a problem (an :class:`~myriad.runtime.nlp.NLP`, or a system 
 and this base writes the rest once: a single solve that measures compile and solve time apart, and
 :meth:`AbstractPureSolver.solve_batch`, one program for a batch of ``data``: ``jax.vmap`` of the same function, or
 ``jax.lax.map`` (the members in turn) where the solver says vmap gains nothing (:meth:`batch_strategy`), vmapped in
-chunks one after another where the solver asks for them (:meth:`batch_chunk`).
+chunks one after another where the solver asks for them (:meth:`batch_chunk`), or, where the solver also gives its
+iteration apart (:meth:`batch_stepper`), with a chunk's worth of members in flight and each stopped member's place
+refilled (:func:`~.stepper.queued`).
 This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
 
 Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
@@ -29,6 +31,7 @@ import numpy as np
 
 from .. import programs
 from .base import CompiledFunction, cached, canonical_data, constraint_violations, program_key, unstack
+from .stepper import Stepper, queued
 
 __all__ = ["AbstractPureSolver", "ScaledEvaluation"]
 
@@ -72,12 +75,17 @@ class _Programs:
     mapped: ``strategy``; spread over the default backend's ``devices`` when there are several)."""
 
     def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap",
-                 raw_batch: Callable[[Any, Any], Any] | None = None, chunk: int | None = None):
+                 raw_batch: Callable[[Any, Any], Any] | None = None, chunk: int | None = None,
+                 stepper: Stepper | None = None):
         self.jitted = jax.jit(raw)
         self.single = CompiledFunction(raw, program_key(key, "single"))
         member = raw if raw_batch is None else raw_batch
-        batched = _vmapped_in_chunks(member, chunk) if strategy == "vmap" else (
-            lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0)))
+        if strategy != "vmap":
+            batched = lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0))  # noqa: E731
+        elif stepper is not None and chunk is not None:
+            batched, strategy = queued(stepper, chunk), "queue"
+        else:
+            batched = _vmapped_in_chunks(member, chunk)
         # A program for several devices is not kept in the program store: an exported one can only be called with
         # its inputs already placed on those devices (the host's arrays are not).
         devices = jax.devices()
@@ -174,6 +182,12 @@ class AbstractPureSolver(abc.ABC):
         (None, the default): on a CPU a chunk whose working set stays in cache can beat one wide batch."""
         return None
 
+    def batch_stepper(self, problem: Any) -> Stepper | None:
+        """:meth:`pure_solve_batch`'s solve with its iteration apart, or None (the default). With a stepper, a
+        chunked vmapped batch keeps ``chunk`` members in flight and refills the places of those that stop
+        (:func:`~.stepper.queued`) instead of running chunks one after another."""
+        return None
+
     def pure_solve_batch(self, problem: Any) -> Callable[[Any, Any], Any]:
         """The pure solve that :meth:`solve_batch` maps or vmaps: :meth:`pure_solve`'s unless the solver has a form
         that suits a batch better (the same results)."""
@@ -247,4 +261,5 @@ class AbstractPureSolver(abc.ABC):
         strategy, chunk = self.batch_strategy(problem), self.batch_chunk(problem)
         return cached(problem, ("pure", self, strategy, chunk), lambda: _Programs(
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
-            strategy, self.pure_solve_batch(problem), chunk))
+            strategy, self.pure_solve_batch(problem), chunk,
+            self.batch_stepper(problem) if strategy == "vmap" else None))

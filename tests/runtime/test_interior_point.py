@@ -95,13 +95,16 @@ def test_second_solve_with_new_data_compiles_nothing():
     assert second.success and np.max(np.abs(second.z - z_star)) <= 1e-7
 
 
-@pytest.mark.parametrize("strategy", ["vmap", "map"])
-def test_batch_equals_one_at_a_time(strategy):
+@pytest.mark.parametrize("strategy, chunk", [("vmap", None), ("map", None), ("vmap", 4)])
+def test_batch_equals_one_at_a_time(strategy, chunk):
+    """Vmapped at once, mapped, and vmapped four at a time with the places of stopped members refilled."""
     rng = np.random.default_rng(0)
     a, b = rng.uniform(-0.5, 1.0, (6, N)), rng.uniform(0.5, 2.0, 6)
-    solver, nlp = InteriorPoint(batch=strategy), simplex()
+    solver, nlp = InteriorPoint(batch=strategy, chunk=chunk), simplex()
     assert solver.batch_strategy() == strategy
     batch = solver.solve_batch(nlp, {"params": {"a": a}, "x0": b[:, None]})
+    if chunk:
+        assert len({m.iterations for m in batch}) > 1  # places were freed at different iterations
     for i, member in enumerate(batch):
         single = solver.solve(nlp, simplex_data(a[i], b[i]))
         assert member.success and member.iterations == single.iterations

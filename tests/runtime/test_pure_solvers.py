@@ -217,3 +217,27 @@ def test_vmapped_in_chunks_equals_one_vmap(chunk):
     np.testing.assert_array_equal(got[0], expected[0])
     np.testing.assert_array_equal(got[1], expected[1])
     assert len(set(np.asarray(got[1]).tolist())) > 1  # the members did stop at different iterations
+
+
+
+@pytest.mark.parametrize("slots", [1, 2, 3, 5, 7, 8])
+def test_queued_equals_one_vmap(slots):
+    """A batch with at most ``slots`` members in flight, each stopped member's place taken by the next waiting one,
+    gives each member what one vmap of the whole solve gives it, in the members' order."""
+    from myriad.runtime.solvers.stepper import Stepper, queued
+
+    def step(data, state):  # Newton's iteration for sqrt(a): a member-dependent number of steps
+        z, k, a = state
+        return 0.5 * (z + a / z), k + 1, a
+
+    stepper = Stepper(begin=lambda data, z0: (z0, 0, data["a"]), step=step,
+                      running=lambda s: jnp.abs(s[0] ** 2 - s[2]) > 1e-12 * s[2],
+                      end=lambda data, s: {"root": s[0], "steps": s[1], "twice": 2.0 * data["a"]})
+    a = jnp.asarray([0.5, 2.0, 9.0, 1e4, 3.0, 1e8, 0.01])
+    z0 = jnp.ones(7)
+    expected = jax.vmap(stepper.solve)({"a": a}, z0)
+    got = jax.jit(queued(stepper, slots))({"a": a}, z0)
+    for key in expected:
+        np.testing.assert_array_equal(got[key], expected[key])
+    assert len(set(np.asarray(got["steps"]).tolist())) > 3  # the members did stop at different iterations
+    np.testing.assert_allclose(got["root"], np.sqrt(a), rtol=1e-12)

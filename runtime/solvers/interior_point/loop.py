@@ -37,6 +37,7 @@ import jax
 import jax.numpy as jnp
 
 from ...status import Status
+from ..stepper import Stepper
 from . import kkt
 from .problem import Layout
 from .restoration import Restoration, make_restoration
@@ -139,14 +140,16 @@ class _State(NamedTuple):
     stalls: jax.Array  # consecutive iterations with a negligible step at an infeasible point
     sigma: jax.Array  # objective scale
     row_scale: jax.Array  # constraint row scales (solver's row order)
+    fresh: jax.Array  # measure the scaling at the first iteration (a cold start)
 
 
 def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
                   second_order_correction: bool = True) -> tuple[Callable[[Any, Any], InteriorPointSolution],
-                                                                 Callable[[Any, Any], WarmStart]]:
-    """``(solve, cold)``: the pure solve ``(data, start) -> InteriorPointSolution``, where ``start`` is the NLP's
-    variables ``z0`` or a :class:`WarmStart`, and ``cold(data, z0) -> WarmStart``, IPOPT's default start from ``z0``
-    (neither jitted; see the module docstring)."""
+                                                                 Callable[[Any, Any], WarmStart], Stepper]:
+    """``(solve, cold, stepper)``: the pure solve ``(data, start) -> InteriorPointSolution``, where ``start`` is the
+    NLP's variables ``z0`` or a :class:`WarmStart`; ``cold(data, z0) -> WarmStart``, IPOPT's default start from
+    ``z0``; and the same solve as a :class:`~myriad.runtime.solvers.stepper.Stepper` (its iteration apart, for a
+    batch that refills finished members' places; ``solve`` is its ``solve``). None is jitted."""
     n, m = layout.n, layout.m
     bounds = Bounds(layout)
     hl, hu, xl, xu, gaps, log_barrier, n_bounds = (bounds.hl, bounds.hu, bounds.xl, bounds.xu, bounds.gaps,
@@ -164,160 +167,164 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
         return WarmStart(x0, jnp.zeros(m, x0.dtype), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one,
                          one, jnp.ones(m, x0.dtype), one)
 
-    def solve_fn(data: Any, start: Any) -> InteriorPointSolution:
+    def error(x, lam, zl, zu, grad, g, jac, mu):
+        """IPOPT's E_mu (its eq. 5) with s_max = 100."""
+        gl, gu = gaps(x)
+        dual = grad + (jac.T @ lam if m else 0.0) - zl + zu
+        compl = jnp.concatenate([jnp.where(hl, gl * zl - mu, 0.0), jnp.where(hu, gu * zu - mu, 0.0)])
+        z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu))
+        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + n_bounds)) / S_MAX
+        s_c = jnp.maximum(S_MAX, z_sum / n_bounds) / S_MAX
+        inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
+        return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g)), inf(compl) / s_c)
+
+    def step(data: Any, st: _State) -> _State:
+        """One iteration (or, for a member that has stopped, its final values)."""
+        x, lam, zl, zu = st.x, st.lam, st.zl, st.zu
+        dtype, fresh = x.dtype, st.fresh
+        y = layout.multipliers(lam, st.sigma, st.row_scale)
+        # One derivative program for both phases: the restoration phase weighs the objective by 0.
+        f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data, jnp.where(st.rs.active, 0.0, 1.0))
+        # The scaling is IPOPT's, measured at the start (the first iteration's point; lam = 0 there).
+        first_sigma, first_rows = layout.scaling(grad_f, jac_c)
+        sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
+        row_scale = jnp.where((st.k == 0) & fresh, first_rows, st.row_scale)
+        pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
+        finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(
+            (pt.f, pt.grad, pt.g, pt.jac, pt.hess))]))
+        kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
+        converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
+        stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
+            converged, int(Status.CONVERGED), jnp.where(st.k >= max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
+
+        def finish(_):
+            # The iterate is final: no step, no line search (a cond, so a single solve skips their cost; under
+            # vmap both branches run, as every member's step did before).
+            return st._replace(status=stop.astype(st.status.dtype), kkt=kkt, objective=pt.objective,
+                               violation=pt.violation, sigma=sigma, row_scale=row_scale)
+
+        def advance(_):
+            """A main iteration: ``(the next state, failed)``."""
+            # Barrier update (monotone): as many decreases as the current point allows.
+            mu = jax.lax.while_loop(
+                lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
+                lambda mu_: decrease_mu(mu_, mu_min), st.mu)
+
+            gl, gu = gaps(x)
+            sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
+            grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
+            r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
+            factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w,
+                                                                  r1)
+            dx, dlam = solve(factors, pt.jac, r1, -pt.g, presolved=True)
+            dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
+            dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
+            tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+            alpha_max = bounds.step_to_boundary(x, dx, tau)
+            alpha_z = jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
+                                  fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
+
+            # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
+            theta = jnp.sum(jnp.abs(pt.g))
+            phi0 = pt.f - mu * log_barrier(x)
+            slope = grad_phi @ dx
+            theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
+            theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
+            # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
+            reset = mu != st.mu
+            f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
+            f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
+            a_min = alpha_min(theta, slope, theta_min)
+            tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
+
+            def trial(ls):
+                j, _, _, x_t, lam_t, _, g_first, theta_first, _ = ls
+                alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
+                x_t, lam_t = x + alpha * dx, lam + alpha * dlam
+                if second_order_correction:
+                    # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
+                    # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
+                    # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
+                    # every trial of every member; a loop runs only while some member needs it.
+                    def corrected(c):
+                        dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]), presolved=True)
+                        a_c = bounds.step_to_boundary(x, dx_c, tau)
+                        return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
+
+                    use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
+                    _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
+                f_t, g_t = layout.values(x_t, data, sigma, row_scale)
+                theta_t = jnp.sum(jnp.abs(g_t))
+                ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,
+                                        theta_max, f_theta, f_phi)
+                g_first = jnp.where(j == 0, g_t, g_first)
+                theta_first = jnp.where(j == 0, theta_t, theta_first)
+                # The search gives up below alpha_min (after the full step and its correction).
+                give_up = ~ok & (j >= 1) & (
+                    (alpha_max * 0.5 ** j.astype(dtype) < a_min) | (j + 1 >= MAX_TRIALS))
+                return j + 1, ok, give_up, x_t, lam_t, alpha, g_first, theta_first, f_type
+
+            first_trial = 0 if second_order_correction else 1
+            ls0 = (jnp.array(first_trial), tiny, jnp.array(False), x + alpha_max * dx, lam + alpha_max * dlam,
+                   alpha_max, jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True))
+            _, accepted, _, x_new, lam_new, alpha, _, _, f_type = jax.lax.while_loop(
+                lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
+            # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
+            restore = ~accepted & inertia_ok & ((theta > 1e-2 * tol) | (pt.violation > 0.1 * constr_viol_tol))
+            restore = restore if m else jnp.array(False)
+            # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
+            grow = (accepted & ~tiny & ~f_type) | restore
+            f_theta, f_phi = add_pair(f_theta, f_phi, st.filter_next, grow, theta, phi0)
+            filter_next = jnp.where(reset, 0, st.filter_next) + grow.astype(jnp.int32)
+
+            zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
+            rs, lam_r, zl_r, zu_r = enter(x, pt.g, zl, zu, mu)
+            pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
+            new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
+                              zu=pick(zu_r, zu_new), mu=mu, rs=jax.tree.map(pick, rs, st.rs), theta_min=theta_min,
+                              theta_max=theta_max, filter_theta=f_theta, filter_phi=f_phi,
+                              filter_next=filter_next, delta_w=delta_w)
+            return new, ~(accepted | restore) | ~inertia_ok
+
+        def restore(_):
+            return restoration_step(st, pt, data)
+
+        def iterate(_):
+            new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if m else advance(None)
+            infeasible = pt.violation > constr_viol_tol
+            negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
+            entered = new.rs.active & ~st.rs.active
+            stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
+            failed = failed | (stalls >= STALL_COUNT)
+            failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
+            status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
+            move = status == RUNNING
+            out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
+            return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
+                                violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
+                                row_scale=row_scale)
+
+        return jax.lax.cond(stop == RUNNING, iterate, finish, None)
+
+    def begin(data: Any, start: Any) -> _State:
+        """The state before the first iteration, from ``z0`` (IPOPT's default start) or a :class:`WarmStart`."""
         ws = start if isinstance(start, WarmStart) else cold(data, start)
         # A warm point sits on its active bounds up to the barrier's ~mu: keep it (barely) inside.
         push = WARM_PUSH * (1.0 + jnp.maximum(jnp.abs(xl), jnp.abs(xu)))
         x0 = jnp.where(hl, jnp.maximum(ws.x, xl + push), ws.x)
         x0 = jnp.where(hu, jnp.minimum(x0, xu - push), x0)
-        dtype = x0.dtype
-        fresh = ws.fresh > 0.5
-
-        def error(x, lam, zl, zu, grad, g, jac, mu):
-            """IPOPT's E_mu (its eq. 5) with s_max = 100."""
-            gl, gu = gaps(x)
-            dual = grad + (jac.T @ lam if m else 0.0) - zl + zu
-            compl = jnp.concatenate([jnp.where(hl, gl * zl - mu, 0.0), jnp.where(hu, gu * zu - mu, 0.0)])
-            z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu))
-            s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + n_bounds)) / S_MAX
-            s_c = jnp.maximum(S_MAX, z_sum / n_bounds) / S_MAX
-            inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
-            return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g)), inf(compl) / s_c)
-
-        def body(st: _State) -> _State:
-            x, lam, zl, zu = st.x, st.lam, st.zl, st.zu
-            y = layout.multipliers(lam, st.sigma, st.row_scale)
-            # One derivative program for both phases: the restoration phase weighs the objective by 0.
-            f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data, jnp.where(st.rs.active, 0.0, 1.0))
-            # The scaling is IPOPT's, measured at the start (the first iteration's point; lam = 0 there).
-            first_sigma, first_rows = layout.scaling(grad_f, jac_c)
-            sigma = jnp.where((st.k == 0) & fresh, first_sigma, st.sigma)
-            row_scale = jnp.where((st.k == 0) & fresh, first_rows, st.row_scale)
-            pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
-            finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(
-                (pt.f, pt.grad, pt.g, pt.jac, pt.hess))]))
-            kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
-            converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
-            stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
-                converged, int(Status.CONVERGED), jnp.where(st.k >= max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
-
-            def finish(_):
-                # The iterate is final: no step, no line search (a cond, so a single solve skips their cost; under
-                # vmap both branches run, as every member's step did before).
-                return st._replace(status=stop.astype(st.status.dtype), kkt=kkt, objective=pt.objective,
-                                   violation=pt.violation, sigma=sigma, row_scale=row_scale)
-
-            def advance(_):
-                """A main iteration: ``(the next state, failed)``."""
-                # Barrier update (monotone): as many decreases as the current point allows.
-                mu = jax.lax.while_loop(
-                    lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
-                    lambda mu_: decrease_mu(mu_, mu_min), st.mu)
-
-                gl, gu = gaps(x)
-                sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
-                grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
-                r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
-                factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w,
-                                                                      r1)
-                dx, dlam = solve(factors, pt.jac, r1, -pt.g, presolved=True)
-                dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
-                dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
-                tau = jnp.maximum(TAU_MIN, 1.0 - mu)
-                alpha_max = bounds.step_to_boundary(x, dx, tau)
-                alpha_z = jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
-                                      fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
-
-                # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
-                theta = jnp.sum(jnp.abs(pt.g))
-                phi0 = pt.f - mu * log_barrier(x)
-                slope = grad_phi @ dx
-                theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
-                theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
-                # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
-                reset = mu != st.mu
-                f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
-                f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
-                a_min = alpha_min(theta, slope, theta_min)
-                tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
-
-                def trial(ls):
-                    j, _, _, x_t, lam_t, _, g_first, theta_first, _ = ls
-                    alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
-                    x_t, lam_t = x + alpha * dx, lam + alpha * dlam
-                    if second_order_correction:
-                        # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
-                        # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
-                        # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
-                        # every trial of every member; a loop runs only while some member needs it.
-                        def corrected(c):
-                            dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]), presolved=True)
-                            a_c = bounds.step_to_boundary(x, dx_c, tau)
-                            return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
-
-                        use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
-                        _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
-                    f_t, g_t = layout.values(x_t, data, sigma, row_scale)
-                    theta_t = jnp.sum(jnp.abs(g_t))
-                    ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,
-                                            theta_max, f_theta, f_phi)
-                    g_first = jnp.where(j == 0, g_t, g_first)
-                    theta_first = jnp.where(j == 0, theta_t, theta_first)
-                    # The search gives up below alpha_min (after the full step and its correction).
-                    give_up = ~ok & (j >= 1) & (
-                        (alpha_max * 0.5 ** j.astype(dtype) < a_min) | (j + 1 >= MAX_TRIALS))
-                    return j + 1, ok, give_up, x_t, lam_t, alpha, g_first, theta_first, f_type
-
-                first_trial = 0 if second_order_correction else 1
-                ls0 = (jnp.array(first_trial), tiny, jnp.array(False), x + alpha_max * dx, lam + alpha_max * dlam,
-                       alpha_max, jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True))
-                _, accepted, _, x_new, lam_new, alpha, _, _, f_type = jax.lax.while_loop(
-                    lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
-                # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
-                restore = ~accepted & inertia_ok & ((theta > 1e-2 * tol) | (pt.violation > 0.1 * constr_viol_tol))
-                restore = restore if m else jnp.array(False)
-                # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
-                grow = (accepted & ~tiny & ~f_type) | restore
-                f_theta, f_phi = add_pair(f_theta, f_phi, st.filter_next, grow, theta, phi0)
-                filter_next = jnp.where(reset, 0, st.filter_next) + grow.astype(jnp.int32)
-
-                zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
-                rs, lam_r, zl_r, zu_r = enter(x, pt.g, zl, zu, mu)
-                pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
-                new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
-                                  zu=pick(zu_r, zu_new), mu=mu, rs=jax.tree.map(pick, rs, st.rs), theta_min=theta_min,
-                                  theta_max=theta_max, filter_theta=f_theta, filter_phi=f_phi,
-                                  filter_next=filter_next, delta_w=delta_w)
-                return new, ~(accepted | restore) | ~inertia_ok
-
-            def restore(_):
-                return restoration_step(st, pt, data)
-
-            def iterate(_):
-                new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if m else advance(None)
-                infeasible = pt.violation > constr_viol_tol
-                negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
-                entered = new.rs.active & ~st.rs.active
-                stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
-                failed = failed | (stalls >= STALL_COUNT)
-                failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
-                status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
-                move = status == RUNNING
-                out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
-                return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
-                                    violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
-                                    row_scale=row_scale)
-
-            return jax.lax.cond(stop == RUNNING, iterate, finish, None)
-
-        one = jnp.ones((), dtype)
-        empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
+        one = jnp.ones((), x0.dtype)
+        empty = jnp.full(FILTER_SIZE, jnp.inf, x0.dtype)
         int0 = jnp.array(0, jnp.int32)
-        st0 = _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, idle(x0), one, one,
-                     empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one, jnp.nan * one,
-                     jnp.inf * one, int0, ws.sigma, ws.row_scale)
-        st = jax.lax.while_loop(lambda s: s.status == RUNNING, body, st0)
+        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, idle(x0), one, one,
+                      empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one,
+                      jnp.nan * one, jnp.inf * one, int0, ws.sigma, ws.row_scale, ws.fresh > 0.5)
 
+    def running(st: _State) -> jax.Array:
+        return st.status == RUNNING
+
+    def end(data: Any, st: _State) -> InteriorPointSolution:
+        """The solution at the final state."""
         gl, gu = gaps(st.x)
         held_l, held_u = hl & (st.zl > gl), hu & (st.zu > gu)
         y = layout.multipliers(st.lam, st.sigma, st.row_scale)
@@ -330,6 +337,7 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             kkt_error=st.kkt, violation=st.violation, mu=st.mu, active_lower=held_l[:n], active_upper=held_u[:n],
             active_rows=rows_active,
             warm=WarmStart(st.x, st.lam, st.zl, st.zu, jnp.maximum(st.mu, WARM_MU), st.sigma, st.row_scale,
-                           jnp.zeros((), dtype)))
+                           jnp.zeros((), st.x.dtype)))
 
-    return solve_fn, cold
+    stepper = Stepper(begin, step, running, end)
+    return stepper.solve, cold, stepper

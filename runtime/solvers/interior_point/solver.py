@@ -13,6 +13,7 @@ from ...nlp import NLP, NLPResult
 from ...status import Status
 from ..base import AbstractNLPSolver, ScaledProblem, cached, constraint_violation, initial_point
 from ..pure import AbstractPureSolver, ScaledEvaluation
+from ..stepper import Stepper
 from .implicit import differentiable
 from .loop import InteriorPointSolution, WarmStart, make_solve_fn
 from .problem import Layout
@@ -26,7 +27,9 @@ CPU_CHUNK = 128
 # With the batch spread over several host devices (one thread each, solve_batch), smaller chunks: two devices share
 # the caches. 1024 NLPs on two devices, program alone, interleaved runs (2026-12-04, medians of 4): Epidemic 2.83 /
 # 3.07 / 3.23 s in chunks of 32 / 64 / 128 (48 and 32 alike in a second run), Mould Fungicide 0.47 / 0.42 / 0.44 s
-# (32 / 64 / 128). On one device chunks of 36 were slower than 128 (Epidemic 5.9 against 4.5 s).
+# (32 / 64 / 128). On one device chunks of 36 were slower than 128 (Epidemic 5.9 against 4.5 s). With the places of
+# stopped members refilled (stepper.queued), Epidemic on two devices, interleaved, medians of 4: 4.02 / 4.03 / 3.98 /
+# 4.27 s with 32 / 48 / 64 / 96 members in flight (a slower hour: chunks of 48 took 5.10 s against the queue's 4.44).
 CPU_CHUNK_SHARED = 48
 
 _MESSAGES = {
@@ -91,9 +94,10 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         kkt: the Newton system's method: ``"auto"``, ``"dense"`` or ``"riccati"`` (above; ``"riccati"`` raises for
             an NLP without the stage structure).
         chunk: how many members a vmapped batch solves at once (on each device): ``"auto"`` (``CPU_CHUNK`` on a
-            CPU, ``CPU_CHUNK_SHARED`` where the batch is spread over several host devices: a chunk's stage data
-            stays in cache and its loop stops with its own slowest member; all at once on an accelerator), ``None``
-            (all at once) or a positive int; the chunks run one after another.
+            CPU, ``CPU_CHUNK_SHARED`` where the batch is spread over several host devices: their stage data stays
+            in cache; all at once on an accelerator), ``None`` (all at once) or a positive int. The place of a
+            member that stops is taken by the next waiting one (:func:`~myriad.runtime.solvers.stepper.queued`), so
+            no chunk waits for its slowest member.
 
     References:
         Wächter & Biegler (2006), On the implementation of an interior-point filter line-search algorithm for
@@ -139,6 +143,11 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         """The batch's solve: with ``kkt="auto"``, stage-wise (Riccati) when the batch is vmapped and the NLP
         allows it (see the class docstring)."""
         return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").raw
+
+    def batch_stepper(self, nlp: NLP) -> Stepper:
+        """:meth:`pure_solve_batch`'s solve as a :class:`Stepper`: a chunked batch keeps ``chunk`` members in flight
+        and refills the places of those that stop (:func:`~myriad.runtime.solvers.stepper.queued`)."""
+        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").stepper
 
     def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
         """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``: what
@@ -227,6 +236,6 @@ class _Compiled(ScaledEvaluation):
     def __init__(self, problem: ScaledProblem, solver: InteriorPoint, method: str):
         super().__init__(problem)
         layout = Layout(problem, method)
-        loop, self.cold = make_solve_fn(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
-                                        solver.second_order_correction)
+        loop, self.cold, self.stepper = make_solve_fn(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
+                                                      solver.second_order_correction)
         self.raw = differentiable(loop, problem)
