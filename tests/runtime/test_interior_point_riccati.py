@@ -22,7 +22,7 @@ from myriad.runtime.solvers.base import ScaledProblem
 from myriad.runtime.solvers.interior_point import kkt
 from myriad.runtime.solvers.interior_point.problem import Layout
 from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain
-from myriad.runtime.solvers.interior_point.rules import residual_ratio
+from myriad.runtime.solvers.interior_point.rules import CHECK_COND, condition_bound, residual_ratio
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
@@ -107,27 +107,52 @@ def test_step_and_inertia_against_dense(shared, negative):
 
 
 def test_refinement_only_where_the_residual_asks():
-    """The refinement step is taken where IPOPT's residual ratio exceeds 1e-10: factors of a nearby matrix (Sigma off
-    by 1e-6 relative) leave a residual of that size, which one step reduces to its square; exact factors need none."""
+    """Where the factors are doubted (``check``), the refinement step is taken where IPOPT's residual ratio exceeds
+    1e-10: factors of a nearby matrix (Sigma off by 1e-6 relative) leave a residual of that size, which one step
+    reduces to its square; exact factors need none. Undoubted factors are trusted: no residual, no refinement."""
     ric, stages, hess, sigma, jac = _random_stages(0, shared="heun", negative=0.0)
     n_x, m = hess.shape[0], jac.shape[0]
     rng = np.random.default_rng(2)
     r1, r2 = rng.standard_normal(n_x), rng.standard_normal(m)
     exact, delta_w, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0)
+    assert not bool(exact.check)  # the first rho, no delta_c, a well-conditioned Schur complement
     near, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma * (1 + 1e-6), jac, 1e-3, 0.0)
     near = near._replace(d=exact.d)  # the residual is measured against the exact matrix
     h_s = hess + np.diag(np.asarray(sigma)) + float(delta_w) * np.eye(n_x)
     big = np.block([[h_s, np.asarray(jac).T], [np.asarray(jac), -float(exact.delta_c) * np.eye(m)]])
     expected = np.linalg.solve(big, np.concatenate([r1, r2]))
     once = np.concatenate(ric._once(near, jac, jnp.asarray(r1), jnp.asarray(r2)))
-    refined = np.concatenate(ric.solve(near, jac, jnp.asarray(r1), jnp.asarray(r2)))
+    trusted = np.concatenate(ric.solve(near, jac, jnp.asarray(r1), jnp.asarray(r2)))
+    refined = np.concatenate(ric.solve(near._replace(check=jnp.array(True)), jac, jnp.asarray(r1), jnp.asarray(r2)))
     scale = np.abs(expected).max()
     assert np.abs(once - expected).max() > 1e-9 * scale  # the unrefined step is off ...
-    assert np.abs(refined - expected).max() < 1e-10 * scale  # ... and the refinement was taken
+    np.testing.assert_array_equal(trusted, once)  # ... and is what an undoubted factorisation gives ...
+    assert np.abs(refined - expected).max() < 1e-10 * scale  # ... while a doubted one takes the refinement
     res = big @ np.concatenate(ric._once(exact, jac, jnp.asarray(r1), jnp.asarray(r2))) - np.concatenate([r1, r2])
     ratio = residual_ratio((r1, r2), (expected[:n_x], expected[n_x:]), (res[:n_x], res[n_x:]))
     assert float(ratio) < 1e-10  # exact factors: no refinement is needed
+    checked = np.concatenate(ric.solve(exact._replace(check=jnp.array(True)), jac, jnp.asarray(r1), jnp.asarray(r2)))
+    np.testing.assert_array_equal(checked, np.concatenate(ric._once(exact, jac, jnp.asarray(r1), jnp.asarray(r2))))
     assert float(residual_ratio((np.zeros(2),), (np.zeros(2),), (np.array([3.0, -4.0]),))) == 4.0
+
+
+def test_factors_are_doubted_after_a_retry_or_with_nearly_dependent_rows():
+    """``check`` is set where the certificate raised rho or delta_w (negative curvature), and where two constraint
+    rows are nearly parallel (the unit-diagonal Schur complement's condition bound above CHECK_COND), not where the
+    rows are only scaled differently."""
+    ric, stages, hess, sigma, jac = _random_stages(0, shared="heun", negative=1.5)
+    f, delta_w, ok = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0)
+    assert ok and float(delta_w) > 0 and bool(f.check)
+    ric, stages, hess, sigma, jac = _random_stages(0, shared="heun", negative=0.0)
+    scaled = jac * jnp.asarray([1e-6, 1.0, 1e4])[:, None]
+    f, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, scaled, 1e-3, 0.0)
+    assert not bool(f.check) and float(condition_bound(f.chol_s)) < 1e3
+    n = jac.shape[1] - 1  # the decisions (the last column is the slack)
+    parallel = jac.at[1, :n].set(jac[0, :n] * (1.0 + 1e-5 * jnp.arange(n, dtype=jac.dtype) / n))
+    f, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, parallel, 1e-3, 0.0)
+    assert float(condition_bound(f.chol_s)) > CHECK_COND and bool(f.check)
+    chol = np.linalg.cholesky(np.array([[4.0, 2.0], [2.0, 2.0]]))  # unit diagonal: [[1, 1/sqrt2], [., 1]]
+    assert abs(float(condition_bound(jnp.asarray(chol))) - 2.0) < 1e-12  # 1 / (1 - 1/2)
 
 
 def test_restoration_system_against_dense():

@@ -35,7 +35,10 @@ block ``P_0^{ww} + D_0`` and ``T`` are (the Schur complements of a block elimina
 one backward pass for the linear terms and one forward pass. ``m`` is small (terminal rows), so ``S = (1 - rho
 delta_c) A H_rho^{-1} A^T + delta_c I`` comes from ``m`` more solves, all at once. One step of iterative refinement
 on ``K`` uses the stage-wise product ``H_s v`` (a forward and an adjoint pass) for the residual, and is taken
-where IPOPT's residual ratio exceeds 1e-10 (:meth:`Riccati.solve`).
+where IPOPT's residual ratio exceeds 1e-10 (:meth:`Riccati.solve`). The residual is measured only where the
+factorisation gives a reason to doubt the solve (``Factors.check``: the certificate raised ``rho`` or regularised
+``A``, or the Schur complement's factor looks ill-conditioned): measured at every step, it took a third of a vmapped
+batch's time, and on the published problems it never asked for a refinement.
 
 Why: under ``vmap`` over a batch, a dense ``n x n`` Cholesky per member does not vectorise on a CPU, while each
 stage of the recursion is a few products of ``(n_y + c)``-sized matrices on the whole batch at once. The small
@@ -56,6 +59,7 @@ from . import blocks as bl
 from .blocks import cho_solve_array as _cho_solve
 from .blocks import cholesky_array as _cholesky
 from .rules import (
+    CHECK_COND,
     DELTA_C_BAR,
     DELTA_C_EXPONENT,
     DELTA_W_MAX,
@@ -63,6 +67,7 @@ from .rules import (
     RESIDUAL_RATIO_MAX,
     RHO_RETRIES,
     RHO_RETRY,
+    condition_bound,
     inertia_schedule,
     residual_ratio,
 )
@@ -122,6 +127,7 @@ class Factors(NamedTuple):
     chol_s: jax.Array  # (m, m)
     rho: jax.Array
     delta_c: jax.Array
+    check: jax.Array  # whether a solve measures its residual (and refines where IPOPT's residual ratio asks)
 
 
 class Riccati:
@@ -207,7 +213,7 @@ class Riccati:
         zeros = jnp.zeros((), dtype)
         none = jnp.zeros((jac.shape[1], 0), dtype)
         f = Factors(h, d, at, bt, gain, chol_r, chol_0, p0_w, chol_t, cross, none, none, jnp.zeros((0, 0), dtype),
-                    zeros, zeros)
+                    zeros, zeros, jnp.array(True))
         solved = None if rhs is None else self._forward(f, lin0, ff, rhs, r)
         return f, jnp.all(ok_r) & ok_0 & ok_t, solved
 
@@ -290,6 +296,9 @@ class Riccati:
                                r1=None) -> tuple[Factors, Any, Any]:
         """IPOPT's inertia correction with :mod:`.kkt`'s certificate and schedule (``rho`` retried at 10^4 and
         10^8 times, then ``delta_w`` grown; ``delta_c`` for a rank-deficient ``A``); ``(factors, delta_w, ok)``.
+        ``factors.check`` is set where the solves should measure their residual: ``rho`` raised above its first
+        value (``H + rho A^T A`` loses accuracy as ``rho`` grows), ``delta_c > 0``, or the Schur complement's
+        Cholesky factor with a diagonal ratio squared above ``CHECK_COND``.
 
         ``r1`` (optional): the Newton system's first block of right-hand side, solved in the same sweeps as the Schur
         complement's ``m`` columns (``H_rho^{-1} (r1 + rho A^T r2) = H_rho^{-1} r1 + rho H_rho^{-1} A^T r2``), so
@@ -317,7 +326,8 @@ class Riccati:
                 ok_s = ok_s & ok_h
             else:
                 chol_s, ok_s = f.chol_s, ok_h
-            f = f._replace(hinv_at=hinv_at, hinv_r1=hinv_r1, chol_s=chol_s, rho=rho, delta_c=delta_c)
+            f = f._replace(hinv_at=hinv_at, hinv_r1=hinv_r1, chol_s=chol_s, rho=rho, delta_c=delta_c,
+                           check=(k > 0) | (delta_c > 0) | (condition_bound(chol_s) > CHECK_COND))
             rank_deficient = ok_h & ~ok_s & (delta_c == 0)
             delta_c = jnp.where(rank_deficient, DELTA_C_BAR * mu**DELTA_C_EXPONENT, delta_c)
             done = ok_h & ok_s
@@ -349,20 +359,21 @@ class Riccati:
         """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``; ``presolved``: ``r1`` is the one given to
         :meth:`factorize_with_inertia`.
 
-        One step of iterative refinement on ``K`` where the residual ratio exceeds IPOPT's ``residual_ratio_max``
-        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its two sweeps run only when
-        some member needs them. Usually none does; a large ``rho`` of the certificate is what costs accuracy."""
+        Where ``f.check`` (see :meth:`factorize_with_inertia`), the residual on ``K`` is measured and one step of
+        iterative refinement taken where IPOPT's residual ratio exceeds ``residual_ratio_max``
+        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its sweeps run only when some
+        member needs them."""
         dx, dl = self._once(f, jac, r1, r2, presolved)
-        res1 = self.hvp(f.hess, dx) + f.d * dx + matvec(jac.T, dl) - r1
-        res2 = matvec(jac, dx) - f.delta_c * dl - r2
 
         def refine(c):
             _, dx_, dl_ = c
+            res1 = self.hvp(f.hess, dx_) + f.d * dx_ + matvec(jac.T, dl_) - r1
+            res2 = matvec(jac, dx_) - f.delta_c * dl_ - r2
+            needed = residual_ratio((r1, r2), (dx_, dl_), (res1, res2)) > RESIDUAL_RATIO_MAX
             cx, cl = self._once(f, jac, res1, res2)
-            return jnp.array(False), dx_ - cx, dl_ - cl
+            return jnp.array(False), jnp.where(needed, dx_ - cx, dx_), jnp.where(needed, dl_ - cl, dl_)
 
-        needed = residual_ratio((r1, r2), (dx, dl), (res1, res2)) > RESIDUAL_RATIO_MAX
-        _, dx, dl = jax.lax.while_loop(lambda c: c[0], refine, (needed, dx, dl))
+        _, dx, dl = jax.lax.while_loop(lambda c: c[0], refine, (f.check, dx, dl))
         return dx, dl
 
     # ---- the restoration phase's system ------------------------------------------------------------------------

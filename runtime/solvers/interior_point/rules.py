@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule",
-           "residual_ratio"]
+           "residual_ratio", "condition_bound"]
 
 # IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
 KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -129,3 +129,17 @@ def residual_ratio(rhs, sol, res) -> jax.Array:
     n_rhs, n_sol, n_res = norm(rhs), norm(sol), norm(res)
     scale = jnp.minimum(n_rhs, MAX_COND * n_sol) + n_sol
     return jnp.where(n_rhs + n_sol == 0.0, n_res, n_res / jnp.where(scale > 0.0, scale, 1.0))
+
+
+# The condition number of a matrix with unit diagonal (bounded below from its Cholesky factor, condition_bound) above
+# which the stage-wise solve measures its residual: with errors ~ cond * eps, 1e6 keeps them near residual_ratio_max.
+CHECK_COND = 1e6
+
+
+def condition_bound(chol) -> jax.Array:
+    """A lower bound on the condition number of ``S = L L^T`` scaled to a unit diagonal (``D^-1/2 S D^-1/2``, which a
+    Cholesky solve's accuracy depends on rather than ``S``'s own row scales), from its Cholesky factor ``L``:
+    ``1 / min_i (L_ii^2 / S_ii)`` (1 for an empty factor)."""
+    if not chol.shape[0]:
+        return jnp.ones((), chol.dtype)
+    return 1.0 / jnp.min(jnp.diagonal(chol) ** 2 / jnp.sum(chol * chol, axis=1))
