@@ -25,7 +25,7 @@ test: setup
 	$(BIN)/myriadc build specs/ --check
 	$(BIN)/myriadc build specs/peers -o runtime/systems/peers --check
 	$(BIN)/myriadc card specs/ -o docs/cards --check
-	$(BIN)/python -m pytest -n 2 --dist loadfile  # two workers, a file each: 8.7 min instead of 11.9 on 2 cores
+	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=25  # two workers, a file each; the 25 slowest tests listed
 
 # The main job: the reference table of all 18 systems (published setting + best over all transcriptions),
 # written to out/ as Markdown and JSON, with one plot per system.
