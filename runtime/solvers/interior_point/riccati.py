@@ -361,8 +361,8 @@ class Riccati:
 
         Where ``f.check`` (see :meth:`factorize_with_inertia`), the residual on ``K`` is measured and one step of
         iterative refinement taken where IPOPT's residual ratio exceeds ``residual_ratio_max``
-        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its sweeps run only when some
-        member needs them."""
+        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its four sweeps run only when
+        some member's factors are doubted."""
         dx, dl = self._once(f, jac, r1, r2, presolved)
 
         def refine(c):
