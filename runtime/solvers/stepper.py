@@ -64,8 +64,9 @@ def queued(stepper: Stepper, slots: int) -> Callable[[Any, Any], Any]:
             # The stopped places take the next waiting members in order.
             new = waiting + jnp.cumsum(stopped) - 1
             fill = stopped & (new < size)
-            new_places = take(jnp.minimum(new, size - 1))
-            fresh = jax.vmap(stepper.begin)(new_places, z0[jnp.minimum(new, size - 1)])
+            next_member = jnp.minimum(new, size - 1)  # places left empty read the last member, then drop it
+            new_places = take(next_member)
+            fresh = jax.vmap(stepper.begin)(new_places, z0[next_member])
             pick = lambda a, b: jnp.where(fill.reshape(fill.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             state, places = jax.tree.map(pick, fresh, state), jax.tree.map(pick, new_places, places)
             owner = jnp.where(stopped, jnp.where(fill, new, size), owner)

@@ -296,9 +296,9 @@ class Riccati:
                                r1=None) -> tuple[Factors, Any, Any]:
         """IPOPT's inertia correction with :mod:`.kkt`'s certificate and schedule (``rho`` retried at 10^4 and
         10^8 times, then ``delta_w`` grown; ``delta_c`` for a rank-deficient ``A``); ``(factors, delta_w, ok)``.
-        ``factors.check`` is set where the solves should measure their residual: ``rho`` raised above its first
-        value (``H + rho A^T A`` loses accuracy as ``rho`` grows), ``delta_c > 0``, or the Schur complement's
-        Cholesky factor with a diagonal ratio squared above ``CHECK_COND``.
+        ``factors.check`` is set where the solves should measure their residual: an attempt after the first
+        (``rho`` or ``delta_w`` raised; ``H + rho A^T A`` loses accuracy as ``rho`` grows), ``delta_c > 0``, or a
+        Schur complement whose :func:`~.rules.condition_bound` exceeds ``CHECK_COND``.
 
         ``r1`` (optional): the Newton system's first block of right-hand side, solved in the same sweeps as the Schur
         complement's ``m`` columns (``H_rho^{-1} (r1 + rho A^T r2) = H_rho^{-1} r1 + rho H_rho^{-1} A^T r2``), so

@@ -142,12 +142,12 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def pure_solve_batch(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         """The batch's solve: with ``kkt="auto"``, stage-wise (Riccati) when the batch is vmapped and the NLP
         allows it (see the class docstring)."""
-        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").raw
+        return self._batch_compiled(nlp).raw
 
     def batch_stepper(self, nlp: NLP) -> Stepper:
         """:meth:`pure_solve_batch`'s solve as a :class:`Stepper`: a chunked batch keeps ``chunk`` members in flight
         and refills the places of those that stop (:func:`~myriad.runtime.solvers.stepper.queued`)."""
-        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").stepper
+        return self._batch_compiled(nlp).stepper
 
     def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
         """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``: what
@@ -217,6 +217,10 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         )
 
     # ---- implementation ----------------------------------------------------------------------------------------
+
+    def _batch_compiled(self, nlp: NLP) -> _Compiled:
+        """What :meth:`solve_batch` runs: stage-wise where the batch is vmapped (:meth:`kkt_method`)."""
+        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap")
 
     def _compiled(self, nlp: NLP, vmapped: bool = False) -> _Compiled:
         method = self.kkt_method(nlp, vmapped)
