@@ -45,8 +45,11 @@ _TRACED_LIBRARIES = ("jax", "jaxlib", "numpy", "diffrax", "equinox", "lineax", "
 
 # XLA's lowest backend (LLVM) optimisation: for programs that run once or for one solve, where compiling is most of the
 # time. Measured on the 2-core AMD EPYC, `myriad bench --published-only --jobs 1`, empty cache: 72.8 s of CPU at the
-# default level, 51.9 s at level 0; the 18 solves themselves 1.58 s against 1.75 s.
-QUICK = {"xla_backend_optimization_level": 0}
+# default level, 51.9 s at level 0; the 18 solves themselves 1.58 s against 1.75 s. Without XLA's CPU fusion emitters
+# (fusions emitted by the older loop emitter): Cart-Pole, HIV, Mountain Car and Bacteria's rows, empty cache, three
+# interleaved runs (2026-12-04): 11.3-14.3 s of CPU at level 0 alone, 7.5-7.8 s without them; solves 0.41-0.55 s
+# against 0.49-0.51 s, the same costs.
+QUICK = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 _COMPILER_OPTIONS: dict[str, Any] | None = None
 
 
