@@ -51,7 +51,7 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
     dtype = _dtype()
     # Host (NumPy) leaves where nothing is traced: a compiled program takes them as they are, while making device
     # arrays of them one at a time (jnp.asarray, jax.device_put) cost ~70 us a leaf, a tenth of a small warm solve.
-    p = {k: np.asarray(v, dtype=dtype) for k, v in zip(system.param_names, system.param_values)}
+    p = _default_params(system, dtype)
     if params is not None:
         _check_names(system, params, p)
         check_structural_params(system, params)
@@ -87,6 +87,14 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     p.update({k: _leaves(v, dtype) for k, v in params.items()})
     xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, dtype)
     return ProblemData(params=p, x0=xs)
+
+
+def _default_params(system: System, dtype) -> Any:
+    """The system's own parameters: the spec's values as host arrays, or what a subclass that overrides
+    ``default_params`` (a learned system's nested model parameters) gives."""
+    if type(system).default_params is System.default_params:
+        return {k: np.asarray(v, dtype=dtype) for k, v in zip(system.param_names, system.param_values)}
+    return system.default_params(dtype)
 
 
 def _leaves(value: Any, dtype) -> Any:
