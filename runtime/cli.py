@@ -87,8 +87,9 @@ def _parser(command: str | None = None):
                    help="processes solving, one system each at a time, this one included (default: one per usable "
                         "core; 1: this process alone)")
     b.add_argument("--compile", choices=("quick", "full"), default="quick",
-                   help="XLA backend optimisation: quick (level 0, the default: each program runs for one solve, and "
-                        "compiling is most of a first run) or full (XLA's default, for timing the solves)")
+                   help="XLA backend optimisation: quick (level 0, no CPU fusion emitters; the default: each "
+                        "program runs for one solve, and compiling is most of a first run) or full (XLA's default, "
+                        "for timing the solves)")
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
     for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
