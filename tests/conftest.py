@@ -10,7 +10,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MYRIAD_JAX_CACHE", "off")
 # The suite is compile-bound, and XLA's CPU fusion emitters compile slower than its loop emitter: the Riccati and
 # Neural-ODE end-to-end files took 164 s without this flag and 127-130 s with it (2-core AMD EPYC, 2026-12-04, two
-# runs each). Both emit the same HLO; `myriad bench --compile quick` turns them off too (runtime/programs.py).
+# runs each). Both compile the same HLO program; `myriad bench --compile quick` turns them off too (programs.py).
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
 
