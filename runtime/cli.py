@@ -12,6 +12,8 @@ import os
 import sys
 import time
 
+from ._command_args import output_file_error, output_folder_error, plot_format_error
+
 __all__ = ["main"]
 
 
@@ -150,47 +152,6 @@ def _usage(message):
     return 2
 
 
-def _output_file_error(path, option):
-    """Why ``path`` cannot be written as a file (None if it can): checked before the work that would fill it."""
-    if path is None:
-        return None
-    folder = os.path.dirname(os.path.abspath(path))
-    if os.path.isdir(path):
-        return f"{option} {path}: is a folder, expected a file name"
-    if not os.path.isdir(folder):
-        what = "is not a folder" if os.path.exists(folder) else "does not exist"
-        return f"{option} {path}: the folder {folder} {what}; create it first"
-    if not os.access(folder, os.W_OK | os.X_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
-        return f"{option} {path}: not writable"
-    return None
-
-
-def _output_folder_error(path, option):
-    """Why ``path`` cannot be used as an output folder (None if it can); missing folders are created later."""
-    if path is None:
-        return None
-    existing = os.path.abspath(path)
-    while not os.path.exists(existing):
-        existing = os.path.dirname(existing)
-    if not os.path.isdir(existing):
-        return f"{option} {path}: {existing} is a file, not a folder"
-    if not os.access(existing, os.W_OK | os.X_OK):
-        return f"{option} {path}: {existing} is not writable"
-    return None
-
-
-def _plot_format_error(path, option):
-    if path is None:
-        return None
-    from matplotlib.backend_bases import FigureCanvasBase
-
-    ext = os.path.splitext(path)[1].lstrip(".").lower()
-    formats = FigureCanvasBase.get_supported_filetypes()
-    if ext and ext not in formats:
-        return f"{option} {path}: unknown image format .{ext}; use one of {', '.join(sorted(formats))}"
-    return None
-
-
 def _first_error(*errors):
     return next((e for e in errors if e is not None), None)
 
@@ -208,8 +169,8 @@ def _cmd_solve(args) -> int:
         _refinement_error(args, method),
         None if args.error_tolerance is None or args.error_tolerance > 0
         else f"--error-tolerance must be positive, got {args.error_tolerance}",
-        _output_file_error(args.json, "--json"), _output_file_error(args.plot, "--plot"),
-        _plot_format_error(args.plot, "--plot"))
+        output_file_error(args.json, "--json"), output_file_error(args.plot, "--plot"),
+        plot_format_error(args.plot, "--plot"))
     if error:
         return _usage(error)
     warn_above = args.error_tolerance or args.tolerance or 1e-6
@@ -348,8 +309,8 @@ def _cmd_bench(args) -> int:
     unknown = [n for n in names if n not in NAMES]
     if unknown:
         return _usage(f"unknown systems {unknown}; shipped: {', '.join(NAMES)}")
-    error = _first_error(_output_file_error(args.json, "--json"), _output_file_error(args.markdown, "--markdown"),
-                         _output_folder_error(args.plots, "--plots"))
+    error = _first_error(output_file_error(args.json, "--json"), output_file_error(args.markdown, "--markdown"),
+                         output_folder_error(args.plots, "--plots"))
     if error:
         return _usage(error)
     if args.jobs is not None and args.jobs < 1:
