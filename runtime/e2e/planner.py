@@ -18,7 +18,7 @@ reverse pass is one vector-Jacobian product per step, the published code chained
 The carry (:class:`PlannerState`) is the whole solver state, so warm starting from the previous iterate continues
 the solve where it stopped; :meth:`UnrolledPlanner.reset` starts afresh (duals 0, new optimiser states and new
 scales measured at the start, as the solver does). From a reset and with the same configuration, K steps here
-reproduce the solver's first K iterations (``tests/runtime/test_e2e_planner.py``).
+reproduce the solver's first K iterations (``tests/runtime/e2e/test_planner.py``).
 
 The default primal rule is AMSGrad(0.1) with ``eps_root = 1e-16``: the solver's default rule, except that the square
 root of the second moment is never taken at an exact 0, where its derivative is infinite (a gradient component that

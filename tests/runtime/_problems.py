@@ -300,3 +300,31 @@ class NoUStar(ScalarLQ):
 
 
 PROBLEMS = (ScalarLQ, DoubleIntegrator, BoundedReach)
+
+
+class Decay(_HandWritten):
+    """x' = -b x + u, x(0) = 1 on [0, 1]; unbounded, so the state scale is |x0| = 1."""
+
+    name = "decay"
+    description = "x' = -b x + u"
+    spec_sha256 = "decay"
+    horizon = 1.0
+    state_names = ("x",)
+    control_names = ("u",)
+    param_names = ("b",)
+    param_values = (2.0,)
+    x0 = (1.0,)
+    x_lower, x_upper, u_lower, u_upper = (-INF,), (INF,), (-INF,), (INF,)
+    x_final = (None,)
+
+    @staticmethod
+    def dynamics(x, u, t, p):
+        return -p["b"] * x + u
+
+    @staticmethod
+    def running_cost(x, u, t, p):
+        return u[0] ** 2
+
+    @staticmethod
+    def terminal_cost(x, t, p):
+        return jnp.zeros((), dtype=x.dtype)

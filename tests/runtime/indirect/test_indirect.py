@@ -15,7 +15,7 @@ from myriad.runtime.indirect.result import STATUS
 from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.status import Status
 
-from ._problems import BoundedReach, DoubleIntegrator, ScalarLQ
+from .._problems import BoundedReach, DoubleIntegrator, ScalarLQ
 
 jax.config.update("jax_enable_x64", True)
 

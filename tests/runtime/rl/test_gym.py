@@ -12,7 +12,7 @@ from myriad.runtime import load
 from myriad.runtime.rl.gym import MyriadVectorEnv
 from myriad.runtime.systems import NAMES
 
-from ..helpers import ROOT
+from ...helpers import ROOT
 
 OPTIONS = {"simple_case": {"action_bound": 2.0}}  # its control is unbounded
 

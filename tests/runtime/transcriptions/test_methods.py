@@ -16,7 +16,7 @@ from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS, ForwardBackw
 
 jax.config.update("jax_enable_x64", True)
 
-SPECS = Path(__file__).parent / "specs"
+SPECS = Path(__file__).parent.parent / "specs"
 METHODS = {**TRANSCRIPTIONS, **INDIRECT}
 
 

@@ -18,7 +18,7 @@ from myriad.runtime.system import OptimalControlUnavailable
 from myriad.runtime.systems import NAMES
 from myriad.runtime.transcriptions import ForwardBackwardSweep, SingleShooting, Trapezoidal
 
-from ..helpers import sample_interval
+from ...helpers import sample_interval
 
 
 class Trajectories(NamedTuple):  # the shape of runtime/sysid/dataset.py's Trajectories

@@ -20,37 +20,9 @@ from myriad.runtime.transcriptions import HermiteSimpson, MultipleShooting, Sing
 from myriad.runtime.transcriptions.base import transcribe
 from myriad.runtime.transcriptions.error import local_errors
 
-from ._problems import INF, _HandWritten
+from .._problems import Decay
 
-B = 2.0
-
-
-class Decay(_HandWritten):
-    """x' = -b x + u, x(0) = 1 on [0, 1]; unbounded, so the state scale is |x0| = 1."""
-
-    name = "decay"
-    description = "x' = -b x + u"
-    spec_sha256 = "decay"
-    horizon = 1.0
-    state_names = ("x",)
-    control_names = ("u",)
-    param_names = ("b",)
-    param_values = (B,)
-    x0 = (1.0,)
-    x_lower, x_upper, u_lower, u_upper = (-INF,), (INF,), (-INF,), (INF,)
-    x_final = (None,)
-
-    @staticmethod
-    def dynamics(x, u, t, p):
-        return -p["b"] * x + u
-
-    @staticmethod
-    def running_cost(x, u, t, p):
-        return u[0] ** 2
-
-    @staticmethod
-    def terminal_cost(x, t, p):
-        return jnp.zeros((), dtype=x.dtype)
+B = Decay.param_values[0]  # the decay rate b
 
 
 # One step of each method on x' = lam x, as a function of z = lam h.

@@ -22,7 +22,7 @@ from myriad.runtime.integrators import (
 )
 from myriad.runtime.simulate import simulate
 
-from ._problems import DoubleIntegrator, ScalarLQ
+from .._problems import DoubleIntegrator, ScalarLQ
 
 
 # A nonlinear, explicitly time-dependent ODE with a known solution, driven by the control u(t) = t:

@@ -11,7 +11,7 @@ from myriad.runtime.integrators import RK4, Adaptive, Heun
 from myriad.runtime.rl import Env, EnvOptions, make_jax, play
 from myriad.runtime.transcriptions._common import state_scale
 
-from ..helpers import ROOT
+from ...helpers import ROOT
 
 KEY = jax.random.PRNGKey(0)
 

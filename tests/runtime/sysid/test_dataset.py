@@ -14,7 +14,7 @@ from myriad.runtime.atomic import atomic_open, atomic_write_text
 from myriad.runtime.sysid import dataset as dataset_module
 from myriad.runtime.sysid.dataset import Sampling, Trajectories, load_dataset, make_dataset, save_dataset
 
-SPECS = Path(__file__).resolve().parents[2] / "specs"
+SPECS = Path(__file__).resolve().parents[3] / "specs"
 
 
 def _all(d):

@@ -32,11 +32,10 @@ from myriad.runtime.transcriptions import (
 )
 from myriad.runtime.transcriptions.refine import MeshRefinement, refine_positions, split_counts
 
-from ._problems import DoubleIntegrator, ScalarLQ
-from .test_error_estimate import Decay
-from .test_transcriptions import _slope, _solve
+from .._nlp import _slope, _solve
+from .._problems import Decay, DoubleIntegrator, ScalarLQ
 
-SPECS = Path(__file__).parent / "specs"
+SPECS = Path(__file__).parent.parent / "specs"
 
 
 def _graded(intervals: int, refine: int = 1, seed: int = 0) -> tuple[float, ...]:

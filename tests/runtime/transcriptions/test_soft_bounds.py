@@ -18,7 +18,7 @@ from myriad.runtime.transcriptions import MultipleShooting, SingleShooting
 from myriad.runtime.transcriptions._common import state_scale
 
 jax.config.update("jax_enable_x64", True)
-SPECS = Path(__file__).parent / "specs"
+SPECS = Path(__file__).parent.parent / "specs"
 
 
 @pytest.mark.parametrize("solver", [Ipopt(), InteriorPoint()], ids=["ipopt", "interior_point"])
