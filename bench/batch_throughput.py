@@ -19,7 +19,7 @@ On a CPU the batch is spread over ``--host-devices`` host devices (default: the 
 unless ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` is set before it starts, which this script does), each
 a thread solving its share: the one-at-a-time rows use one core, as IPOPT does.
 
-Usage: python bench/batch_throughput.py [--systems mould_fungicide epidemic] [--solver interior_point]
+Usage: python -m bench.batch_throughput [--systems mould_fungicide epidemic] [--solver interior_point]
                                         [--transcription single_shooting] [--grid 100] [--batch 1024]
                                         [--subset 32] [--spread 0.1] [--compare] [--host-devices N] [--repeat 3]
                                         [--json FILE]
@@ -36,6 +36,9 @@ import sys
 import time
 from pathlib import Path
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 # One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
 # go through SciPy's threaded OpenBLAS, and on the busy 2-core machine a 202 x 202 Cholesky measured a median 10 ms
 # (worst 1.5 s) with its default threads against 1 ms (worst 16 ms) with one. IPOPT's own BLAS (Debian's
@@ -43,33 +46,24 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-def _host_devices(argv) -> int:
-    """``--host-devices`` (default: this machine's cores), read before JAX starts: the batch is spread over that many
-    host devices, each a thread running its share (``solve_batch`` splits a batch over the default backend's
-    devices). JAX sees one host device unless told otherwise, so the flag must be in XLA_FLAGS before it loads."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--host-devices", type=int, default=os.cpu_count() or 1)
-    count = pre.parse_known_args(argv)[0].host_devices
-    if count < 1:
-        raise SystemExit(f"--host-devices must be at least 1, got {count}")
-    return count
-
-
+# --host-devices (default: this machine's cores) is read here, before JAX loads: the batch is spread over that many
+# host devices, each a thread running its share (``solve_batch`` splits a batch over the default backend's devices).
+# JAX sees one host device unless told otherwise, so the flag must be in XLA_FLAGS before it loads (main() rejects
+# a count below 1).
 if "xla_force_host_platform_device_count" not in os.environ.get("XLA_FLAGS", ""):
+    _pre = argparse.ArgumentParser(add_help=False)
+    _pre.add_argument("--host-devices", type=int, default=os.cpu_count() or 1)
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count="
-                               + str(_host_devices(sys.argv[1:]))).strip()
+                               + str(max(1, _pre.parse_known_args()[0].host_devices))).strip()
 
-import jax  # noqa: E402
+import jax
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import numpy as np  # noqa: E402
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.integrators import Heun  # noqa: E402
-from myriad.runtime.solve import solve, solve_batch  # noqa: E402
-from myriad.runtime.solvers import Extragradient, InteriorPoint, Ipopt  # noqa: E402
-from myriad.runtime.transcriptions import SingleShooting, Trapezoidal, control_scale, state_scale  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.integrators import Heun
+from myriad.runtime.solve import solve, solve_batch
+from myriad.runtime.solvers import Extragradient, InteriorPoint, Ipopt
+from myriad.runtime.transcriptions import SingleShooting, Trapezoidal, control_scale, state_scale
 
 ROOT = Path(__file__).resolve().parent.parent
 BATCHED = {"interior_point": InteriorPoint, "extragradient": Extragradient}
@@ -113,8 +107,7 @@ def one_at_a_time(system, transcription, solver, params, x0, n):
 
 def casadi_one_at_a_time(system, name, params, x0, n):
     """The same members by CasADi + IPOPT (the published-setting NLP of bench/casadi_peer.py), one nlpsol call each."""
-    sys.path.insert(0, str(ROOT / "bench"))
-    from casadi_peer import CasadiShooting, export_file  # after JAX chose its device: it defaults JAX to the CPU
+    from bench.casadi_peer import CasadiShooting, export_file  # after JAX chose its device: it defaults JAX to the CPU
 
     cs = export_file(ROOT / "specs" / f"{name}.yaml")
     t0 = time.perf_counter()
@@ -256,8 +249,8 @@ def main(argv=None) -> int:
     ap.add_argument("--host-devices", type=int, default=os.cpu_count() or 1,
                     help="host devices (threads) a CPU batch is spread over; 1 for one (read before JAX starts)")
     args = ap.parse_args(argv)
-    if args.repeat < 1 or args.batch < 1 or args.subset < 1:
-        ap.error("--repeat, --batch and --subset must be at least 1")
+    if args.repeat < 1 or args.batch < 1 or args.subset < 1 or args.host_devices < 1:
+        ap.error("--repeat, --batch, --subset and --host-devices must be at least 1")
     print(f"device: {jax.devices()} (jax {jax.__version__}); host CPU: {_machine()}")
     records = [run_system(name, args) for name in args.systems]
     if args.json:

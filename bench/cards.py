@@ -7,7 +7,7 @@ solutions (costs, defects, status; no timings, so a re-run on another machine ch
 fingerprint of the problem's mathematics, and ``docs/cards/img/NAME.png`` plots the published-setting solution. Then
 the cards and their index are re-rendered. Other systems' entries are kept, so one system can be refreshed alone.
 
-Usage: python bench/cards.py [NAME ...] [--out docs/cards]     (all 18 systems: about 10 min on 2 cores)
+Usage: python -m bench.cards [NAME ...] [--out docs/cards]     (all 18 systems: about 10 min on 2 cores)
 """
 
 import argparse
@@ -19,17 +19,18 @@ import sys
 import tempfile
 from pathlib import Path
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 import jax
 
-jax.config.update("jax_enable_x64", True)
-
-from myriad.compiler.build import check_file  # noqa: E402
-from myriad.compiler.card import RESULTS_FILE, RESULTS_SCHEMA, build_cards, fingerprint  # noqa: E402
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.bench import run_bench  # noqa: E402
-from myriad.runtime.plotting import plot_solution  # noqa: E402
-from myriad.runtime.solution import json_number  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
+from myriad.compiler.build import check_file
+from myriad.compiler.card import RESULTS_FILE, RESULTS_SCHEMA, build_cards, fingerprint
+from myriad.runtime import load
+from myriad.runtime.bench import run_bench
+from myriad.runtime.plotting import plot_solution
+from myriad.runtime.solution import json_number
+from myriad.runtime.systems import NAMES
 
 ROOT = Path(__file__).resolve().parent.parent
 SETTING = "single shooting, 100 control intervals, Heun, IPOPT"  # runtime.bench.PUBLISHED_SETTING, in words

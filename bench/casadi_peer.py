@@ -30,7 +30,7 @@ both; 'spread' is the range of the --repeat paired ratios (the i-th myriad over 
 timing, both NLPs are evaluated at the common starting point as a check that they are the same problem ("start"
 column: the largest relative difference of objective and constraints).
 
-Usage: python bench/casadi_peer.py [--solver ipopt|interior_point] [--systems NAME ...] [--repeat R] [--json FILE]
+Usage: python -m bench.casadi_peer [--solver ipopt|interior_point] [--systems NAME ...] [--repeat R] [--json FILE]
 """
 
 from __future__ import annotations
@@ -44,6 +44,9 @@ import sys
 import time
 from pathlib import Path
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")  # like CasADi, on the CPU (tiny problems gain nothing from a GPU)
 # One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
 # go through SciPy's threaded OpenBLAS, and on the busy 2-core machine a 202 x 202 Cholesky measured a median 10 ms
@@ -51,21 +54,18 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")  # like CasADi, on the CPU (tiny p
 # openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import casadi  # noqa: E402
-import jax  # noqa: E402
+import casadi
+import cyipopt
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import cyipopt  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from myriad.compiler.casadi_export import CasadiSystem, export_file  # noqa: E402
-from myriad.runtime import Heun, Ipopt, SingleShooting, load, solve  # noqa: E402
-from myriad.runtime.solve import transcribe  # noqa: E402
-from myriad.runtime.solvers import InteriorPoint  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
-from myriad.runtime.transcriptions import control_scale, default_data, state_scale  # noqa: E402
+from myriad.compiler.casadi_export import CasadiSystem, export_file
+from myriad.runtime import Heun, Ipopt, SingleShooting, load, solve
+from myriad.runtime.solve import transcribe
+from myriad.runtime.solvers import InteriorPoint
+from myriad.runtime.systems import NAMES
+from myriad.runtime.transcriptions import control_scale, default_data, state_scale
 
 ROOT = Path(__file__).resolve().parent.parent
 N = 100

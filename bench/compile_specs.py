@@ -1,14 +1,18 @@
 """Time `myriadc build` of all shipped specs (cold process, as a user runs it) and the in-process pipeline.
 
-Usage: python bench/compile_specs.py [--repeat N]
+Usage: python -m bench.compile_specs [--repeat N]
 """
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -9,7 +9,7 @@
 (b) Solvers (same NLP): the smooth Lenhart systems on one transcription, IPOPT vs. SLSQP vs. Extragradient vs.
     InteriorPoint (pure JAX). Same discretisation, so the discrete ``cost`` is compared directly.
 
-Usage: python bench/cross_check.py [--systems a,b,...] [--part a|b|ab] [--solvers ipopt,interior_point,...]
+Usage: python -m bench.cross_check [--systems a,b,...] [--part a|b|ab] [--solvers ipopt,interior_point,...]
                                    [--json FILE] [--markdown FILE]
 """
 
@@ -22,25 +22,25 @@ import os
 import sys
 import time
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # One OpenBLAS thread (before NumPy/SciPy load it): SciPy's SLSQP calls LAPACK on small dense matrices, and
 # threaded OpenBLAS on a busy 2-core machine measured 175 s instead of 1.4 s for 103 SLSQP iterations
 # (bear_populations, Trapezoidal(50)). Set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
+import jax
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import numpy as np  # noqa: E402
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.integrators import RK4, DormandPrince  # noqa: E402
-from myriad.runtime.simulate import simulate  # noqa: E402
-from myriad.runtime.solve import Solution, solve  # noqa: E402
-from myriad.runtime.solvers import SLSQP, Extragradient, InteriorPoint, Ipopt  # noqa: E402
-from myriad.runtime.system import OptimalControlUnavailable  # noqa: E402
-from myriad.runtime.transcriptions import (  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.integrators import RK4, DormandPrince
+from myriad.runtime.simulate import simulate
+from myriad.runtime.solve import Solution, solve
+from myriad.runtime.solvers import SLSQP, Extragradient, InteriorPoint, Ipopt
+from myriad.runtime.system import OptimalControlUnavailable
+from myriad.runtime.transcriptions import (
     ForwardBackwardSweep,
     HermiteSimpson,
     MultipleShooting,

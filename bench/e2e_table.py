@@ -1,9 +1,9 @@
 """End-to-end learning (Algorithm 2) benchmarks: the cost of a gradient, and learning runs per system (Table D).
 
-    python bench/e2e_table.py gradients [--system cancer_treatment]
+    python -m bench.e2e_table gradients [--system cancer_treatment]
         time of one reverse pass: unrolled through K = 10 (and 30) planner steps against the implicit-function
         backward pass at a converged plan (and the forward solve it needs), published grid (100 controls)
-    python bench/e2e_table.py learn SYSTEM... [--model parametric|node] [--gradient unrolled|implicit] [--unroll K]
+    python -m bench.e2e_table learn SYSTEM... [--model parametric|node] [--gradient unrolled|implicit] [--unroll K]
             [--iterations N] [--lr LR] [--reset-every R] [--init guess|sysid] [--sysid-rounds R]
             [--loss controls|states|both] [--hidden W W] [--seed S]
             [--implicit-solver interior_point|extragradient] [--json FILE] [--markdown FILE]
@@ -31,22 +31,22 @@ import sys
 import time
 import traceback
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from isolate import isolated, write_json  # noqa: E402  (bench/ is the script's folder)
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.data import ProblemData, default_data  # noqa: E402
-from myriad.runtime.e2e import E2EConfig, UnrolledPlanner, make_implicit_solve, run_e2e  # noqa: E402
-from myriad.runtime.solvers.interior_point import InteriorPoint  # noqa: E402
-from myriad.runtime.sysid.models import Parametric  # noqa: E402
-from myriad.runtime.sysid.run import SysidConfig  # noqa: E402
-from myriad.runtime.transcriptions import SingleShooting  # noqa: E402
-from myriad.runtime.transcriptions.base import transcribe  # noqa: E402
+from bench.isolate import isolated, write_json
+from myriad.runtime import load
+from myriad.runtime.data import ProblemData, default_data
+from myriad.runtime.e2e import E2EConfig, UnrolledPlanner, make_implicit_solve, run_e2e
+from myriad.runtime.solvers.interior_point import InteriorPoint
+from myriad.runtime.sysid.models import Parametric
+from myriad.runtime.sysid.run import SysidConfig
+from myriad.runtime.transcriptions import SingleShooting
+from myriad.runtime.transcriptions.base import transcribe
 
 
 def _machine() -> str:

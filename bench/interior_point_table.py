@@ -8,7 +8,7 @@ The transcriptions: the published setting, ``myriad bench``'s three alternatives
 part (a) (``cross_check_*``: 200 control intervals, the settings of ``bench/cross_check.py``; ``--systems cross_check``
 takes its 13 Lenhart systems and Van der Pol).
 
-Usage: python bench/interior_point_table.py [--systems NAME ... | cross_check] [--transcription published|
+Usage: python -m bench.interior_point_table [--systems NAME ... | cross_check] [--transcription published|
        multiple_shooting|trapezoidal|hermite_simpson|cross_check_multiple_shooting|cross_check_trapezoidal|
        cross_check_hermite_simpson] [--repeat R] [--max-iter K]
 
@@ -21,7 +21,9 @@ import argparse
 import os
 import statistics
 import sys
-from pathlib import Path
+
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # One OpenBLAS thread (before NumPy/SciPy load it): JAX's CPU LAPACK calls (InteriorPoint's Cholesky factorisations)
@@ -30,17 +32,12 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # openblas-serial) is single-threaded already. Set OPENBLAS_NUM_THREADS yourself to override.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
-
-from myriad.runtime import load, solve  # noqa: E402
-from myriad.runtime.bench import ALTERNATIVES, PUBLISHED_SETTING  # noqa: E402
-from myriad.runtime.solvers import InteriorPoint, Ipopt  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cross_check import METHODS_A, TRANSCRIPTION_SYSTEMS  # noqa: E402
+from bench.cross_check import METHODS_A, TRANSCRIPTION_SYSTEMS
+from myriad.runtime import load, solve
+from myriad.runtime.bench import ALTERNATIVES, PUBLISHED_SETTING
+from myriad.runtime.solvers import InteriorPoint, Ipopt
+from myriad.runtime.systems import NAMES
 
 SETTINGS = {"published": PUBLISHED_SETTING, "multiple_shooting": ALTERNATIVES[0], "trapezoidal": ALTERNATIVES[1],
             "hermite_simpson": ALTERNATIVES[2],

@@ -11,7 +11,7 @@ point's differentiable solve (its ``jax.custom_vjp``: the implicit function theo
 Printed per system: the largest relative differences (|a - b| / max(1, |b|)), against the issue's bars (envelope
 1e-6, finite differences 1e-5), and the seconds (compilations included). Exit code 1 when a bar is missed.
 
-Usage: python bench/ipm_gradients.py [--systems NAME ...]
+Usage: python -m bench.ipm_gradients [--systems NAME ...]
 """
 
 from __future__ import annotations
@@ -22,22 +22,22 @@ import platform
 import sys
 import time
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # see bench/interior_point_table.py
 
-import jax  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.bench import PUBLISHED_SETTING  # noqa: E402
-from myriad.runtime.data import ProblemData, default_data  # noqa: E402
-from myriad.runtime.solvers import InteriorPoint  # noqa: E402
-from myriad.runtime.solvers.base import canonical_data  # noqa: E402
-from myriad.runtime.status import Status  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.bench import PUBLISHED_SETTING
+from myriad.runtime.data import ProblemData, default_data
+from myriad.runtime.solvers import InteriorPoint
+from myriad.runtime.solvers.base import canonical_data
+from myriad.runtime.status import Status
 
 ENVELOPE_BAR, FD_BAR = 1e-6, 1e-5
 DEFAULT = ["mould_fungicide", "cancer_treatment", "bioreactor", "bacteria", "van_der_pol", "timber_harvest"]

@@ -6,7 +6,7 @@ Default systems: the hyper-sensitive problem (tests/runtime/specs/hypersensitive
 at both ends, published J* = 3.3620563) and three shipped ones with smooth solutions (van_der_pol, cancer_treatment,
 mountain_car). Each level compiles its NLP once (new shapes): the seconds are mostly compilation.
 
-Usage: python bench/mesh_refinement.py [--systems NAME|PATH ...] [--transcriptions NAME ...] [--intervals N]
+Usage: python -m bench.mesh_refinement [--systems NAME|PATH ...] [--transcriptions NAME ...] [--intervals N]
                                        [--tolerance 1e-6] [--max-refinements 10] [--json FILE]
 """
 
@@ -21,13 +21,14 @@ import sys
 import time
 from pathlib import Path
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 import jax
 
-jax.config.update("jax_enable_x64", True)
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.solve import solve  # noqa: E402
-from myriad.runtime.transcriptions import TRANSCRIPTIONS  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.solve import solve
+from myriad.runtime.transcriptions import TRANSCRIPTIONS
 
 HYPER = str(Path(__file__).resolve().parent.parent / "tests" / "runtime" / "specs" / "hypersensitive.yaml")
 DEFAULT_SYSTEMS = [HYPER, "van_der_pol", "cancer_treatment", "mountain_car"]

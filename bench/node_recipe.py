@@ -1,6 +1,6 @@
 """Neural ODE training recipe search (Table C): fit a Neural ODE, plan on it (published setting), judge on the truth.
 
-    .venv/bin/python bench/node_recipe.py RECIPE SYSTEM [SYSTEM ...] [--out results.jsonl]
+    .venv/bin/python -m bench.node_recipe RECIPE SYSTEM [SYSTEM ...] [--out results.jsonl]
 
 Prints one row per system: optimum, achieved cost, relative gap, max |defect|, fit seconds, total seconds, epochs.
 Recipes are named configurations below (``RECIPES``); each is (SysidConfig kwargs, FitConfig kwargs).
@@ -11,10 +11,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 import time
 
-import jax
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 import numpy as np
 import optax
 
@@ -25,8 +28,6 @@ from myriad.runtime.sysid.evaluate import evaluate
 from myriad.runtime.sysid.fit import FitConfig, fit
 from myriad.runtime.sysid.models import NeuralODE
 from myriad.runtime.sysid.run import SysidConfig, _merge, run_sysid
-
-jax.config.update("jax_enable_x64", True)
 
 
 def schedule(peak=1e-2, warmup=50, decay=1000, end=1e-4, clip=1.0):

@@ -15,7 +15,7 @@ seconds (first solve in the process, compilation included). A row is within when
 1e-3 of the published optimum; otherwise it carries the reason (the solver's status, "not yet enforced", or the known
 cause written beside the setting). A failure in one problem is recorded in its row; the table is always printed.
 
-Usage: python bench/peer_table.py [--problems NAME ...] [--skip-myriad] [--skip-casadi] [--json FILE]
+Usage: python -m bench.peer_table [--problems NAME ...] [--skip-myriad] [--skip-casadi] [--json FILE]
        [--markdown FILE]
 """
 
@@ -32,17 +32,17 @@ import time
 import traceback
 from pathlib import Path
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-import jax  # noqa: E402
 
-jax.config.update("jax_enable_x64", True)
-
-from myriad.runtime import load, solve  # noqa: E402
-from myriad.runtime.atomic import atomic_write_text  # noqa: E402
-from myriad.runtime.system import UnsupportedFeature  # noqa: E402
-from myriad.runtime.systems import peers  # noqa: E402
-from myriad.runtime.transcriptions import TRANSCRIPTIONS  # noqa: E402
+from myriad.runtime import load, solve
+from myriad.runtime.atomic import atomic_write_text
+from myriad.runtime.system import UnsupportedFeature
+from myriad.runtime.systems import peers
+from myriad.runtime.transcriptions import TRANSCRIPTIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = ROOT / "specs" / "peers"

@@ -3,21 +3,23 @@
 Prints per system the cold time (load + compile + solve + re-simulation), the compile and solve split, and the warm
 solve time (the same problem solved again: no tracing, no compilation), then the totals against the 60 s goal.
 
-Usage: python bench/reference_table.py [--systems NAME ...] [--no-resimulate]
+Usage: python -m bench.reference_table [--systems NAME ...] [--no-resimulate]
 """
 
 import argparse
+import os
+import sys
 import time
 
-T_START = time.perf_counter()
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
-import jax  # noqa: E402
+import jax
 
-jax.config.update("jax_enable_x64", True)
-
-from myriad.runtime import Heun, Ipopt, SingleShooting, load, solve  # noqa: E402
-from myriad.runtime.bench import meets_target  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
+from bench import STARTED
+from myriad.runtime import Heun, Ipopt, SingleShooting, load, solve
+from myriad.runtime.bench import meets_target
+from myriad.runtime.systems import NAMES
 
 
 def main() -> None:
@@ -26,7 +28,7 @@ def main() -> None:
     ap.add_argument("--no-resimulate", action="store_true", help="skip the adaptive re-simulation")
     args = ap.parse_args()
     setting = SingleShooting(controls=100, integrator=Heun())
-    print(f"device: {jax.devices()[0].platform}; imports {time.perf_counter() - T_START:.2f} s")
+    print(f"device: {jax.devices()[0].platform}; imports {time.perf_counter() - STARTED:.2f} s")
     print(f"{'system':18s} {'cost':>12s} {'target':>10s} {'meets':>5s} {'cold s':>7s} {'compile s':>9s} "
           f"{'solve s':>7s} {'warm s':>7s}")
     rows = []
@@ -49,7 +51,7 @@ def main() -> None:
     print()
     print(f"systems meeting their target: {sum(1 for r in rows if r[4])} / {len(rows)}")
     print(f"table wall time (cold, JIT included, {len(rows)} systems): {cold_total:.1f} s "
-          f"(process total incl. imports and warm re-solves: {time.perf_counter() - T_START:.1f} s; goal: < 60 s)")
+          f"(process total incl. imports and warm re-solves: {time.perf_counter() - STARTED:.1f} s; goal: < 60 s)")
     print(f"warm solve: median {warm[len(warm) // 2]:.3f} s, max {warm[-1]:.3f} s, sum {sum(warm):.2f} s")
 
 

@@ -6,7 +6,7 @@ as ``myriad.runtime.solution.resimulate`` does (restarted at every node, rtol 1e
 the program (what a first run pays, once per system), the median run time over ``--repeat`` calls, and the relative
 difference of the two re-simulated costs.
 
-Usage: python bench/resimulation.py [--systems NAME ...] [--repeat R]
+Usage: python -m bench.resimulation [--systems NAME ...] [--repeat R]
 """
 
 from __future__ import annotations
@@ -14,23 +14,24 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
+import sys
 import time
+
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
+import jax
+import jax.numpy as jnp
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.bench import PUBLISHED_SETTING  # noqa: E402
-from myriad.runtime.integrators import Adaptive, DormandPrince  # noqa: E402
-from myriad.runtime.simulate import _simulate  # noqa: E402
-from myriad.runtime.solve import solve  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.bench import PUBLISHED_SETTING
+from myriad.runtime.integrators import Adaptive, DormandPrince
+from myriad.runtime.simulate import _simulate
+from myriad.runtime.solve import solve
+from myriad.runtime.systems import NAMES
 
 
 def measure(system, integrator, controls, repeat: int) -> tuple[float, float, float]:

@@ -18,7 +18,7 @@ loop (the shipped reference scores).
   budget, not a tuned agent;
 * random: the reference's 100 uniform random episodes (seed 0) recomputed (0.00 by construction).
 
-Usage: python bench/rl_baselines.py [--systems van_der_pol pendulum ...] [--rl-steps 1000000] [--json out/rl.json]
+Usage: python -m bench.rl_baselines [--systems van_der_pol pendulum ...] [--rl-steps 1000000] [--json out/rl.json]
 """
 
 from __future__ import annotations
@@ -29,20 +29,21 @@ import json
 import os
 import platform
 import subprocess
+import sys
 import time
 from datetime import date
 
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)  # the MPC's planner and every score are float64 figures
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from myriad.runtime.loader import load  # noqa: E402
-from myriad.runtime.rl.env import Env, EnvOptions, play  # noqa: E402
-from myriad.runtime.rl.mpc import MPC, mismatched_params  # noqa: E402
-from myriad.runtime.rl.reference import ACTION_BOUNDS, evaluate, normalized_score, reference_env, reference_scores  # noqa: E402
+from myriad.runtime.loader import load
+from myriad.runtime.rl.env import Env, EnvOptions, play
+from myriad.runtime.rl.mpc import MPC, mismatched_params
+from myriad.runtime.rl.reference import ACTION_BOUNDS, evaluate, normalized_score, reference_env, reference_scores
 
 SYSTEMS = ["van_der_pol", "pendulum", "cancer_treatment", "mountain_car", "cartpole"]
 COLUMNS = ["open loop", "MPC", "MPC mismatch", "MPC noise", "PPO", "random"]

@@ -1,7 +1,7 @@
 """Elastic final-state bounds leave a feasible optimum where it was: every spec with bounded final states, IPOPT,
 the published setting, hard rows against ``SingleShooting(soft_state_bounds=c max(1, |J*|))``.
 
-    python bench/soft_bounds.py [--factor C ...]
+    python -m bench.soft_bounds [--factor C ...]
 
 Prints the relative change of the cost per spec and factor (default c = 10, the factor end-to-end learning uses on
 request, and 100); the change is the slacks' barrier residue at IPOPT's tolerance, not a moved optimum.
@@ -11,16 +11,17 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
-import jax
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
-jax.config.update("jax_enable_x64", True)
 
-from myriad.runtime import load, systems  # noqa: E402
-from myriad.runtime.solve import solve  # noqa: E402
-from myriad.runtime.solvers import Ipopt  # noqa: E402
-from myriad.runtime.transcriptions import SingleShooting  # noqa: E402
-from myriad.runtime.transcriptions._common import bounded_free_states  # noqa: E402
+from myriad.runtime import load, systems
+from myriad.runtime.solve import solve
+from myriad.runtime.solvers import Ipopt
+from myriad.runtime.transcriptions import SingleShooting
+from myriad.runtime.transcriptions._common import bounded_free_states
 
 
 def main() -> None:

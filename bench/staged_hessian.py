@@ -6,7 +6,7 @@ For each system at the published setting (SingleShooting(100), Heun): the time o
 the unit vectors), and the largest relative difference of the two Hessians. Times are the minimum and the median of
 ``--repeat`` calls after the first, the two programs interleaved so that both see the same machine.
 
-Usage: python bench/staged_hessian.py [--systems NAME ...] [--repeat R]
+Usage: python -m bench.staged_hessian [--systems NAME ...] [--repeat R]
 """
 
 from __future__ import annotations
@@ -15,25 +15,26 @@ import argparse
 import dataclasses
 import os
 import statistics
+import sys
 import time
+
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import jax  # noqa: E402
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.bench import PUBLISHED_SETTING  # noqa: E402
-from myriad.runtime.data import default_data  # noqa: E402
-from myriad.runtime.solvers.base import ScaledProblem  # noqa: E402
-from myriad.runtime.solvers.interior_point.problem import Layout  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
-from myriad.runtime.transcriptions.base import transcribe  # noqa: E402
+from myriad.runtime import load
+from myriad.runtime.bench import PUBLISHED_SETTING
+from myriad.runtime.data import default_data
+from myriad.runtime.solvers.base import ScaledProblem
+from myriad.runtime.solvers.interior_point.problem import Layout
+from myriad.runtime.systems import NAMES
+from myriad.runtime.transcriptions.base import transcribe
 
 
 def main() -> None:

@@ -11,7 +11,7 @@ plan is within 0.1 % of the optimum (|gap| <= 1e-3) with any required final valu
 the planner's feasibility tolerance is ~1e-6 on its own model, and the true rollout differs by the fit's error),
 timing max / median. An exception in one system is recorded as its failure; the table is always printed.
 
-Usage: python bench/sysid_table.py --model parametric|node [--systems NAME ...] [--noise F] [--trajectories N]
+Usage: python -m bench.sysid_table --model parametric|node [--systems NAME ...] [--noise F] [--trajectories N]
        [--rounds K] [--epochs E] [--anchor-weight W] [--reaim K] [--seed S] [--method least_squares|adam]
        [--json FILE] [--markdown FILE]
 """
@@ -29,24 +29,24 @@ import sys
 import time
 import traceback
 
-T_START = time.perf_counter()
+if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
+    os.execv(sys.executable, [sys.executable, "-m", "bench." + os.path.basename(__file__)[:-3], *sys.argv[1:]])
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
-import jax  # noqa: E402
+import jax
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import numpy as np  # noqa: E402
-from isolate import isolated  # noqa: E402  (bench/ is the script's folder)
-
-from myriad.runtime import load  # noqa: E402
-from myriad.runtime.simulate import simulate  # noqa: E402
-from myriad.runtime.sysid import run as sysid_run  # noqa: E402
-from myriad.runtime.sysid.fit import FitConfig  # noqa: E402
-from myriad.runtime.sysid.polish import PolishConfig  # noqa: E402
-from myriad.runtime.sysid.run import SysidConfig, failed, run_sysid  # noqa: E402
-from myriad.runtime.systems import NAMES  # noqa: E402
-from myriad.runtime.transcriptions import default_data, state_scale  # noqa: E402
+from bench import STARTED
+from bench.isolate import isolated
+from myriad.runtime import load
+from myriad.runtime.simulate import simulate
+from myriad.runtime.sysid import run as sysid_run
+from myriad.runtime.sysid.fit import FitConfig
+from myriad.runtime.sysid.polish import PolishConfig
+from myriad.runtime.sysid.run import SysidConfig, failed, run_sysid
+from myriad.runtime.systems import NAMES
+from myriad.runtime.transcriptions import default_data, state_scale
 
 RECOVERED = (1e-6, 1e-4)  # max relative parameter error: least squares / looser
 GAP_TOL = 1e-3  # relative cost gap: "within 0.1 % of the optimum"
@@ -331,7 +331,7 @@ def main(argv=None) -> int:
         what = row.get("error") or f"{err}gap {fmt(row['relative_gap'], '{:+.1e}')}, {row['message']}"
         print(f"  {name:17s} {row['total_seconds']:6.1f} s  {what}", file=sys.stderr, flush=True)
     (text, md), lines, total = render(rows, config.model, noisy), summary(rows, config.model, noisy), \
-        time.perf_counter() - T_START
+        time.perf_counter() - STARTED
     tab = "B" if config.model == "parametric" else "C"
     foot = (f"Table {tab}: the published figures (the paper's names; its Pendulum / Mountain Car optima used 50 "
             f"intervals, its Cartpole other dynamics){'; its max rel err from its true/learned values' * (tab == 'B')}"
