@@ -2,7 +2,7 @@
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test demo build check lint clean cards
+.PHONY: setup test test-fast demo build check lint clean cards
 
 setup:
 	@bash scripts/setup.sh
@@ -27,6 +27,10 @@ test: setup
 	$(BIN)/myriadc card specs/ -o docs/cards --check
 	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=25  # two workers, a file each; the 25 slowest tests listed
 
+# What a developer runs while working: every test but those marked slow (tests/README.md), under 2 minutes on 2 cores.
+test-fast: setup
+	$(BIN)/python -m pytest -n 2 -m "not slow"
+
 # The main job: the reference table of all 18 systems (published setting + best over all transcriptions),
 # written to out/ as Markdown and JSON, with one plot per system.
 demo: setup
@@ -37,7 +41,7 @@ demo: setup
 
 # The problem cards' recorded results and plots (docs/cards/results.json, img/): solves every system, then re-renders.
 cards: setup
-	$(BIN)/python bench/cards.py
+	$(BIN)/python -m bench.cards
 
 clean:
 	rm -rf $(VENV) build *.egg-info
