@@ -2,7 +2,7 @@
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: setup test test-fast demo build check lint clean cards
+.PHONY: setup test test-fast demo build check lint clean cards docs
 
 setup:
 	@bash scripts/setup.sh
@@ -43,5 +43,10 @@ demo: setup
 cards: setup
 	$(BIN)/python -m bench.cards
 
+# The user's guide and the API reference from the docstrings (mkdocs-material + mkdocstrings) into site/; --strict:
+# a reference, page or link that does not resolve fails the build (tests/test_docs.py builds it too).
+docs: setup
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build site *.egg-info

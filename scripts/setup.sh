@@ -33,5 +33,5 @@ if [ -f "$stamp" ] && [ "$stamp" -nt pyproject.toml ] && [ "$stamp" -nt constrai
 if "$VENV/bin/python" -m pip show -q myriad >/dev/null 2>&1; then
   "$VENV/bin/python" -m pip uninstall -q -y myriad && rm -rf myriad.egg-info
 fi
-"$VENV/bin/python" -m pip install -q -c constraints.txt -e ".[test,bench,ray]"
+"$VENV/bin/python" -m pip install -q -c constraints.txt -e ".[test,bench,ray,docs]"  # docs: tests/test_docs.py builds the site
 touch "$stamp"
