@@ -7,7 +7,6 @@ differentiated through K unrolled extragradient steps or by the implicit functio
 
 from .config import E2EConfig as E2EConfig
 from .expert import expert_from_dataset as expert_from_dataset
-from .implicit import kkt_vjp as kkt_vjp
 from .implicit import make_implicit_solve as make_implicit_solve
 from .planner import PlannerState as PlannerState
 from .planner import UnrolledPlanner as UnrolledPlanner
@@ -16,5 +15,4 @@ from .train import E2EReport as E2EReport
 from .train import run_e2e as run_e2e
 
 __all__ = ["E2EConfig", "E2EReport", "PlannerState", "UnrolledPlanner", "default_planner_solver", "expert_from_dataset",
-           "kkt_vjp",
            "make_implicit_solve", "run_e2e"]

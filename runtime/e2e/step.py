@@ -27,7 +27,7 @@ import optax
 
 from ..data import ProblemData
 from ..nlp import NLP
-from ..solvers.extragradient.loop import optax_promotion
+from ..solvers.extragradient import optax_promotion
 from ..solvers.interior_point import InteriorPoint
 from .config import E2EConfig
 from .implicit import make_implicit_solve

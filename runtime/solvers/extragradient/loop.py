@@ -1,4 +1,5 @@
-r"""The pure solve: Korpelevich's extragradient iteration with optax step rules, as one ``lax.while_loop``.
+r"""The iteration: Korpelevich's extragradient step with optax step rules, as a stepper (:class:`ExtragradientStepper`)
+whose ``lax.while_loop`` is the pure solve.
 
 Writing ``v = (p, lambda, mu)`` and ``G(v) = (grad_p L, -grad_lambda L, -grad_mu L)`` (see :mod:`.lagrangian`), one
 iteration is
@@ -12,11 +13,13 @@ descent-ascent cycle around saddle points. ``Pi`` projects ``mu`` onto ``mu >= 0
 :mod:`.box`). The optimiser states are threaded through both half-steps (restarting the look-ahead from the previous
 state measured worse). The loop stops when the KKT residual is at most ``tol``, at ``max_iter``, or at a non-finite
 point. Measurements: docs/notes/extragradient-tuning.md.
+
+The same stepper is the end-to-end learner's unrolled planner (a ``lax.scan`` of :meth:`ExtragradientStepper.iterate`,
+:mod:`myriad.runtime.e2e.planner`), so a planner step is a solver iteration by construction, not by copy.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
@@ -24,15 +27,16 @@ import jax.numpy as jnp
 import optax
 
 from ..base import ScaledProblem, split_constraints
+from ..stepper import Stepper
 from .box import make_box
 from .lagrangian import Lagrangian, Point
 from .penalty import PenaltySchedule
-from .scaling import make_scales
+from .scaling import Scales, make_scales
 
 if TYPE_CHECKING:
     from .solver import Extragradient
 
-__all__ = ["ExtragradientSolution", "make_solve_fn", "optax_promotion", "step_rules"]
+__all__ = ["ExtragradientSolution", "ExtragradientState", "ExtragradientStepper", "optax_promotion", "step_rules"]
 
 
 class ExtragradientSolution(NamedTuple):
@@ -72,23 +76,71 @@ def step_rules(step: Any, dual_step: Any) -> tuple[optax.GradientTransformation,
     return primal, dual
 
 
-def make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[Any, Any], ExtragradientSolution]:
-    """Build the pure ``(data, z0) -> ExtragradientSolution`` for one scaled problem. All indices are static."""
-    m = problem.n_constraints
-    scale = jnp.asarray(problem.scale)
-    eq_idx, up_idx, lo_idx = split_constraints(problem.c_lower, problem.c_upper)
-    tol, max_iter = float(solver.tol), int(solver.max_iter)
-    penalty = PenaltySchedule(float(solver.penalty), float(solver.penalty_growth), float(solver.penalty_max), tol)
-    box = make_box(problem.w_lower, problem.w_upper, solver.bounds)
-    lagrangian = Lagrangian(problem.objective, problem.constraints, m, eq_idx, up_idx, lo_idx, problem.c_lower,
-                            problem.c_upper, box, penalty)
-    primal, dual = step_rules(solver.step, solver.dual_step)
+class ExtragradientState(NamedTuple):
+    """The whole solver state between iterations (a pytree of arrays; warm-starting from it continues the solve).
 
-    def project_duals(duals):
-        lam, mu_u, mu_l = duals
-        return lam, jnp.maximum(mu_u, 0.0), jnp.maximum(mu_l, 0.0)
+    Attributes:
+        p, duals: the primal parameters (``w = box.to_w(p)``, ``z = w * z_scale``) and ``(lambda, mu_u, mu_l)``.
+        state_p, state_d: the primal and dual optax states.
+        rho, v_ref: the penalty and the violation at its last check; k: iterations taken since :meth:`begin`.
+        scales: the objective, column and row scales measured at :meth:`begin` (held fixed in between).
+        point: the Lagrangian's derivatives at ``(p, duals)`` (for the data of the last iteration).
+    """
 
-    def step(origin_p, origin_duals, state_p, state_d, at: Point, d):
+    p: jax.Array
+    duals: tuple
+    state_p: Any
+    state_d: Any
+    rho: jax.Array
+    v_ref: jax.Array
+    k: jax.Array
+    scales: Scales
+    point: Point
+
+
+class ExtragradientStepper:
+    """The extragradient solve of one scaled problem and configuration, its iteration apart (built once per pair).
+
+    :meth:`begin`, :meth:`step`, :meth:`running` and :meth:`end` are a :class:`~..stepper.Stepper`
+    (:attr:`stepper`): the pure solve is its ``while_loop`` (:meth:`solve`) and a batch queue drives the same
+    methods. :meth:`iterate` is one iteration whatever the state (the unrolled planner's fixed number of steps runs
+    past convergence); :meth:`refresh` re-evaluates a carried state's point for new data. Nothing is jitted and no
+    index is traced: all sizes are static.
+    """
+
+    def __init__(self, problem: ScaledProblem, solver: Extragradient):
+        m = problem.n_constraints
+        self.problem, self.m = problem, m
+        self.scale = jnp.asarray(problem.scale)
+        eq_idx, up_idx, lo_idx = split_constraints(problem.c_lower, problem.c_upper)
+        self.sizes = (eq_idx.size, up_idx.size, lo_idx.size)
+        self.tol, self.max_iter = float(solver.tol), int(solver.max_iter)
+        self.from_guess, self.scale_objective = solver.scaling == "guess", bool(solver.scale_objective)
+        self.penalty = PenaltySchedule(float(solver.penalty), float(solver.penalty_growth), float(solver.penalty_max),
+                                       self.tol)
+        self.box = make_box(problem.w_lower, problem.w_upper, solver.bounds)
+        self.lagrangian = Lagrangian(problem.objective, problem.constraints, m, eq_idx, up_idx, lo_idx,
+                                     problem.c_lower, problem.c_upper, self.box, self.penalty)
+        self.primal, self.dual = step_rules(solver.step, solver.dual_step)
+        self.stepper = Stepper(self.begin, self.step, self.running, self.end)
+
+    def begin(self, data: Any, z0: Any) -> ExtragradientState:
+        """The state at ``z0``: duals 0, fresh optimiser states, the scales measured there."""
+        z0 = jnp.asarray(z0)
+        box = self.box
+        p0 = box.start(z0 / self.scale)
+        duals0 = tuple(jnp.zeros(size, z0.dtype) for size in self.sizes)
+        with optax_promotion():
+            state_p, state_d = self.primal.init(p0), self.dual.init(duals0)
+        rho = self.penalty.initial(z0.dtype)
+        scales = make_scales(self.problem.objective, self.problem.constraints, box.to_w(p0), data, z0.dtype,
+                             boxed=box.boxed, m=self.m, from_guess=self.from_guess,
+                             scale_objective=self.scale_objective)
+        point = self.lagrangian.evaluate(p0, duals0, rho, data, scales)
+        return ExtragradientState(p0, duals0, state_p, state_d, rho, point.violation, jnp.zeros((), jnp.int32),
+                                  scales, point)
+
+    def _project(self, origin_p, origin_duals, state_p, state_d, at: Point, d):
         """One projected optax step from ``origin`` along the gradients ``at`` a (possibly other) point.
 
         The primal rule acts on ``v = p / d``: it sees the gradient ``d * grad_p`` and its step ``dv`` is ``d * dv`` in
@@ -96,50 +148,56 @@ def make_solve_fn(problem: ScaledProblem, solver: Extragradient) -> Callable[[An
         proportional to its magnitude ``d``.
         """
         with optax_promotion():
-            update_v, state_p = primal.update(at.grad_p * d, state_p, origin_p / d)
-            update_d, state_d = dual.update(at.grad_duals, state_d, origin_duals)
-        p = box.project(origin_p + d * update_v)
-        duals = project_duals(jax.tree.map(jnp.add, origin_duals, update_d))
-        return p, duals, state_p, state_d
+            update_v, state_p = self.primal.update(at.grad_p * d, state_p, origin_p / d)
+            update_d, state_d = self.dual.update(at.grad_duals, state_d, origin_duals)
+        p = self.box.project(origin_p + d * update_v)
+        lam, mu_u, mu_l = jax.tree.map(jnp.add, origin_duals, update_d)
+        return p, (lam, jnp.maximum(mu_u, 0.0), jnp.maximum(mu_l, 0.0)), state_p, state_d
 
-    def solve(data, z0) -> ExtragradientSolution:
-        z0 = jnp.asarray(z0)
-        p0 = box.start(z0 / scale)
-        duals0 = (jnp.zeros(eq_idx.size, z0.dtype), jnp.zeros(up_idx.size, z0.dtype), jnp.zeros(lo_idx.size, z0.dtype))
-        with optax_promotion():
-            states0 = primal.init(p0), dual.init(duals0)
-        rho_init = penalty.initial(z0.dtype)
-        scales = make_scales(problem.objective, problem.constraints, box.to_w(p0), data, z0.dtype, boxed=box.boxed,
-                             m=m, from_guess=solver.scaling == "guess", scale_objective=bool(solver.scale_objective))
+    def iterate(self, data: Any, st: ExtragradientState) -> ExtragradientState:
+        """One extragradient iteration from ``st``, whether or not it has stopped."""
+        scales, rho = st.scales, st.rho
         d = scales.column
-        point0 = lagrangian.evaluate(p0, duals0, rho_init, data, scales)
-        init = (jnp.zeros((), jnp.int32), p0, duals0, *states0, point0, rho_init, point0.violation)
+        # NOTE: the optimiser states are threaded through both half-steps; restarting the second from the old
+        # state measured worse (docs/notes/extragradient-tuning.md).
+        # Look ahead from (p, duals) with the gradient there ...
+        p_half, duals_half, state_p, state_d = self._project(st.p, st.duals, st.state_p, st.state_d, st.point, d)
+        # ... and step from (p, duals) again with the gradient at the look-ahead point.
+        point_half = self.lagrangian.evaluate(p_half, duals_half, rho, data, scales)
+        p, duals, state_p, state_d = self._project(st.p, st.duals, state_p, state_d, point_half, d)
+        point = self.lagrangian.evaluate(p, duals, rho, data, scales)
+        rho, v_ref = self.penalty.update(st.k, rho, st.v_ref, point.violation)
+        return ExtragradientState(p, duals, state_p, state_d, rho, v_ref, st.k + 1, scales, point)
 
-        def cond(carry):
-            k, *_, point, _, _ = carry
-            # A non-finite point has kkt = +inf: stop there rather than iterate on NaNs.
-            return (k < max_iter) & (point.kkt > tol) & jnp.isfinite(point.kkt)
+    def step(self, data: Any, st: ExtragradientState) -> ExtragradientState:
+        """:meth:`iterate` while :meth:`running`; a stopped state stays as it is (the :class:`Stepper` contract).
+        Inside the solve's loop the state is always running, and the select returns the iterate bit for bit."""
+        go = self.running(st)
+        return jax.tree.map(lambda new, old: jnp.where(go, new, old), self.iterate(data, st), st)
 
-        def body(carry):
-            k, p, duals, state_p, state_d, point, rho, v_ref = carry
-            # NOTE: the optimiser states are threaded through both half-steps; restarting the second from the old
-            # state measured worse (docs/notes/extragradient-tuning.md).
-            # Look ahead from (p, duals) with the gradient there ...
-            p_half, duals_half, state_p, state_d = step(p, duals, state_p, state_d, point, d)
-            # ... and step from (p, duals) again with the gradient at the look-ahead point.
-            point_half = lagrangian.evaluate(p_half, duals_half, rho, data, scales)
-            p, duals, state_p, state_d = step(p, duals, state_p, state_d, point_half, d)
-            point = lagrangian.evaluate(p, duals, rho, data, scales)
-            rho, v_ref = penalty.update(k, rho, v_ref, point.violation)
-            return k + 1, p, duals, state_p, state_d, point, rho, v_ref
+    def running(self, st: ExtragradientState) -> jax.Array:
+        # A non-finite point has kkt = +inf: stop there rather than iterate on NaNs.
+        kkt = st.point.kkt
+        return (st.k < self.max_iter) & (kkt > self.tol) & jnp.isfinite(kkt)
 
-        k, p, _, _, _, point, _, _ = jax.lax.while_loop(cond, body, init)
+    def end(self, data: Any, st: ExtragradientState) -> ExtragradientSolution:
+        point = st.point
         return ExtragradientSolution(
-            z=box.to_w(p) * scale,
-            multipliers=point.multipliers / scales.sigma,  # back to the unscaled objective's multipliers
-            iterations=k,
-            converged=point.kkt <= tol,
+            z=self.z(st),
+            multipliers=point.multipliers / st.scales.sigma,  # back to the unscaled objective's multipliers
+            iterations=st.k,
+            converged=point.kkt <= self.tol,
             violation=point.violation,
         )
 
-    return solve
+    def solve(self, data: Any, z0: Any) -> ExtragradientSolution:
+        """The pure solve ``(data, z0) -> ExtragradientSolution``: one ``lax.while_loop`` of :meth:`step`."""
+        return self.stepper.solve(data, z0)
+
+    def refresh(self, data: Any, st: ExtragradientState) -> ExtragradientState:
+        """``st`` with its point re-evaluated for ``data`` (a warm state carried over from other data)."""
+        return st._replace(point=self.lagrangian.evaluate(st.p, st.duals, st.rho, data, st.scales))
+
+    def z(self, st: ExtragradientState) -> jax.Array:
+        """The iterate in the NLP's own variables."""
+        return self.box.to_w(st.p) * self.scale

@@ -6,6 +6,7 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any, ClassVar, Literal, final
 
+import jax.numpy as jnp
 import numpy as np
 import optax
 
@@ -18,8 +19,10 @@ from ..base import (
     constraint_violation,
     initial_point,
 )
+from ..implicit import differentiable, estimated_active
 from ..pure import AbstractPureSolver, ScaledEvaluation
-from .loop import ExtragradientSolution, make_solve_fn
+from ..stepper import Stepper
+from .loop import ExtragradientSolution, ExtragradientStepper
 
 __all__ = ["Extragradient"]
 
@@ -93,7 +96,8 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
 
     Measurements behind these choices and defaults: docs/notes/extragradient-tuning.md.
 
-    The whole solve is one ``lax.while_loop``: :meth:`solve_fn` returns the jit-compiled ``(data, z0) ->``
+    The whole solve is one ``lax.while_loop`` over its iteration (:meth:`stepper`, also the end-to-end learner's
+    unrolled planner): :meth:`solve_fn` returns the jit-compiled ``(data, z0) ->``
     :class:`ExtragradientSolution`, and :meth:`solve_batch` runs ``jax.vmap`` of it over a batch of ``data`` as one
     program (the loop then runs until every member has stopped; stopped members are frozen by ``vmap``'s select,
     so each result equals its single solve).
@@ -159,7 +163,26 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
     # ---- the pure tier (see AbstractPureSolver) ----------------------------------------------------------------
 
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
-        return self._compiled(nlp).raw
+        return self._compiled(nlp).stepper.solve
+
+    def stepper(self, nlp: NLP) -> ExtragradientStepper:
+        """The solve of ``nlp`` with its iteration apart (built once per NLP and configuration): ``begin``, ``step``,
+        ``running``, ``end``, and ``iterate`` (one iteration whatever the state: the unrolled planner's)."""
+        return self._compiled(nlp).stepper
+
+    def differentiable_solve(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
+        """:meth:`pure_solve` with reverse mode in ``data`` by the implicit-function rule
+        (:mod:`~myriad.runtime.solvers.implicit`) at active sets estimated from the solution and least-squares
+        multipliers (the cotangent of ``multipliers`` is ignored); NaN cotangents unless it converged. The plain
+        :meth:`pure_solve` stays a ``while_loop`` that reverse mode refuses (never a silent gradient)."""
+        problem = self._compiled(nlp).problem
+        scale = jnp.asarray(problem.scale)
+        return differentiable(self.pure_solve(nlp), problem,
+                              lambda data, out: estimated_active(problem, data, out.z / scale),
+                              lambda out: out.converged)
+
+    def batch_stepper(self, nlp: NLP) -> Stepper:
+        return self._compiled(nlp).stepper.stepper
 
     def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
         return initial_point(nlp, data, z0)
@@ -215,4 +238,4 @@ class _Compiled(ScaledEvaluation):
 
     def __init__(self, problem: ScaledProblem, solver: Extragradient):
         super().__init__(problem)
-        self.raw = make_solve_fn(problem, solver)
+        self.stepper = ExtragradientStepper(problem, solver)

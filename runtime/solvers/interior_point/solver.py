@@ -139,6 +139,11 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         return self._compiled(nlp).raw
 
+    def differentiable_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
+        """:meth:`pure_solve`, which is differentiable already (the implicit-function rule at the solution's own
+        active sets and multipliers, :mod:`.implicit`)."""
+        return self.pure_solve(nlp)
+
     def pure_solve_batch(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         """The batch's solve: with ``kkt="auto"``, stage-wise (Riccati) when the batch is vmapped and the NLP
         allows it (see the class docstring)."""
