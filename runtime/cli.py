@@ -13,6 +13,7 @@ import sys
 import time
 
 from ._command_args import output_file_error, output_folder_error, plot_format_error
+from .configs import add_arguments, from_args, usage_message
 
 __all__ = ["main"]
 
@@ -24,10 +25,10 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def _methods() -> dict:
-    from .transcriptions import INDIRECT, TRANSCRIPTIONS
-
-    return {**TRANSCRIPTIONS, **INDIRECT}
+# SolveConfig's flags where they are not --field-name, and their usage-line names.
+_SOLVE_SPELLED = {"intervals": ("--intervals", "--controls")}
+_SOLVE_METAVARS = {"intervals": "N", "tolerance": "TOL", "max_refinements": "K", "max_intervals": "N",
+                   "x0_std": "F", "seed": "S"}
 
 
 # Commands that build only their own parser: the others' parsers live in their packages, whose imports (equinox,
@@ -39,38 +40,22 @@ def _parser(command: str | None = None):
     """The argument parser; with ``command`` (``solve`` or ``bench``) the package commands' parsers are left out."""
     # The choices come from the registries: a new transcription, solver or integrator appears here by itself.
     from .integrators import INTEGRATORS
+    from .solve_config import METHODS, SolveConfig
     from .solvers import SOLVERS
 
-    methods = _methods()
-    shooting = [name for name, cls in methods.items() if _takes_integrator(cls)]
     p = _Parser(prog="myriad", description="Trajectory optimisation on myriad systems.")
     p.add_argument("-v", "--verbose", action="store_true", help="tracebacks on internal errors")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     s = sub.add_parser("solve", help="solve one system")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--transcription", default="single_shooting", choices=list(methods),
-                   help="the method (default: single_shooting, the published setting)")
-    s.add_argument("--solver", default=None, choices=list(SOLVERS),
-                   help="the NLP solver of a direct transcription (default: ipopt); indirect methods take none")
-    s.add_argument("--integrator", default=None, choices=[n for n, c in INTEGRATORS.items() if c.fixed_step],
-                   help=f"for {', '.join(shooting)} (default: each one's own)")
-    s.add_argument("--intervals", "--controls", dest="intervals", type=int, default=None, metavar="N",
-                   help="the control grid: N uniform intervals (N + 1 control nodes), the same grid for every method "
-                        "(multiple shooting groups them into shooting intervals of 5 steps); "
-                        "default: each method's own")
+    add_arguments(s, SolveConfig, spelled=_SOLVE_SPELLED, metavars=_SOLVE_METAVARS,
+                  choices={"transcription": list(METHODS), "solver": list(SOLVERS),
+                           "integrator": [n for n, c in INTEGRATORS.items() if c.fixed_step]})
     s.add_argument("--json", metavar="FILE", help="write the solution record (and trajectory) as JSON")
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
     s.add_argument("--error-tolerance", type=float, default=None, metavar="TOL",
                    help="warn (on stderr) when the error estimate, the relative local error of the dynamics on the "
                         "method's grid, exceeds TOL (default: --tolerance when refining, else 1e-6)")
-    s.add_argument("--tolerance", type=float, default=None, metavar="TOL",
-                   help="mesh refinement: solve again on non-uniform grids, splitting the intervals whose error "
-                        "estimate exceeds TOL, until it meets TOL (exit 1 if a limit stops it first); "
-                        "direct transcriptions only, starting from --intervals")
-    s.add_argument("--max-refinements", type=int, default=None, metavar="K",
-                   help="with --tolerance: the most refined grids after the first solve (default 10)")
-    s.add_argument("--max-intervals", type=int, default=None, metavar="N",
-                   help="with --tolerance: the largest grid refinement may build (default 2000)")
     if command not in _OWN_PARSER_ONLY:
         from .e2e.cli import add_parser as add_e2e
         from .rl.cli import add_parser as add_rl_reference
@@ -108,12 +93,6 @@ def _add_cache_options(parser):
     cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
 
 
-def _takes_integrator(cls) -> bool:
-    import dataclasses
-
-    return any(f.name == "integrator" for f in dataclasses.fields(cls))
-
-
 def _configure_jax(args=None):
     import jax
 
@@ -125,26 +104,16 @@ def _configure_jax(args=None):
         enable_compilation_cache(getattr(args, "cache_dir", None))
 
 
-def _transcription(args):
-    """The method object from the arguments, or a usage error (exit 2) before any work starts."""
-    from .integrators import INTEGRATORS
+def _solve_config(args):
+    """The :class:`~myriad.runtime.solve_config.SolveConfig` of the arguments (``ValueError``: a usage error)."""
+    from .solve_config import SolveConfig
 
-    cls = _methods()[args.transcription]
-    kwargs = {}
-    if args.integrator:
-        if not _takes_integrator(cls):
-            raise SystemExit(_usage(f"--integrator applies to the shooting transcriptions, not {args.transcription}"))
-        kwargs["integrator"] = INTEGRATORS[args.integrator]()
-    if args.solver and not cls.uses_solver:
-        raise SystemExit(_usage(f"{args.transcription} solves Pontryagin's conditions itself and takes no --solver"))
-    if args.intervals is None:
-        return cls(**kwargs)
-    if args.intervals < 1:
-        raise SystemExit(_usage("--intervals must be at least 1"))
-    try:
-        return cls.on_grid(args.intervals, **kwargs)
-    except ValueError as exc:
-        raise SystemExit(_usage(str(exc))) from None
+    return from_args(SolveConfig, args)
+
+
+def _transcription(args):
+    """The method object of the arguments."""
+    return _solve_config(args).build()[0]
 
 
 def _usage(message):
@@ -158,32 +127,30 @@ def _first_error(*errors):
 
 def _cmd_solve(args) -> int:
     _configure_jax(args)
-    from . import load, solve
-    from .solvers import SOLVERS
+    from . import load
+    from .solve_config import SolveConfig
 
     try:
-        method = _transcription(args)
-    except SystemExit as usage:  # checked before the system is even loaded
-        return int(usage.code)
+        config = _solve_config(args)  # checked before the system is even loaded
+    except ValueError as exc:
+        return _usage(usage_message(exc, SolveConfig, _SOLVE_SPELLED))
     error = _first_error(
-        _refinement_error(args, method),
         None if args.error_tolerance is None or args.error_tolerance > 0
         else f"--error-tolerance must be positive, got {args.error_tolerance}",
         output_file_error(args.json, "--json"), output_file_error(args.plot, "--plot"),
         plot_format_error(args.plot, "--plot"))
     if error:
         return _usage(error)
-    warn_above = args.error_tolerance or args.tolerance or 1e-6
+    warn_above = args.error_tolerance or config.tolerance or 1e-6
     system = load(args.system)
-    if not method.uses_solver:  # an indirect method: refused before any work (every direct transcription enforces them)
+    if not config.build()[0].uses_solver:  # an indirect method: refused before any work (direct ones enforce them)
         from .system import UnsupportedFeature
 
         try:
-            system.require_schema1_features(f"--transcription {args.transcription}")
+            system.require_schema1_features(f"--transcription {config.transcription}")
         except UnsupportedFeature as exc:
             return _usage(f"{exc}; choose a direct transcription")
-    sol = solve(system, method, SOLVERS[args.solver]() if args.solver else None, tolerance=args.tolerance,
-                max_refinements=args.max_refinements, max_intervals=args.max_intervals)
+    sol = config.solve(system)
     state = "converged" if sol.converged else "NOT CONVERGED"
     print(f"{system.name}: {sol.transcription} + {sol.solver} ({sol.integrator}): {state} after {sol.iterations} "
           f"iterations ({sol.message})")
@@ -213,28 +180,6 @@ def _cmd_solve(args) -> int:
         plot_solution(sol, args.plot, system)
         print(f"  plot: {args.plot}")
     return 0 if sol.accurate else 1
-
-
-def _refinement_error(args, method):
-    """Why the refinement options cannot apply (None if they can): checked before the system is loaded."""
-    if args.tolerance is None:
-        given = [f for f, v in (("--max-refinements", args.max_refinements), ("--max-intervals", args.max_intervals))
-                 if v is not None]
-        if given:
-            verb = "is" if len(given) == 1 else "are"
-            return f"{' and '.join(given)} {verb} only for mesh refinement: add --tolerance"
-        return None
-    if not method.uses_solver:
-        return f"--tolerance refines the grid of a direct transcription; {args.transcription} has none"
-    from .transcriptions.refine import MeshRefinement
-
-    options = {k: v for k, v in (("max_refinements", args.max_refinements), ("max_intervals", args.max_intervals))
-               if v is not None}
-    try:
-        MeshRefinement(args.tolerance, **options)
-    except ValueError as exc:
-        return f"--{str(exc).replace('_', '-')}"
-    return None
 
 
 def _report_refinement(sol):

@@ -1,7 +1,9 @@
 """What a sweep runs: systems x methods x seeds, each task a JSON-ready dict for :func:`.tasks.run`.
 
-A method is a named kind with its settings; on the command line ``[NAME=]KIND[:KEY=VALUE,...]``, each value read as
-JSON when it parses (``20``, ``1e-6``, ``true``, ``[32,32]``, ``{"max_iter":50}``) and as a string otherwise::
+A method is a named kind with its settings (the fields of the kind's config, e.g.
+:class:`~myriad.runtime.solve_config.SolveConfig`); on the command line ``[NAME=]KIND[:KEY=VALUE,...]``, each value
+read as JSON when it parses (``20``, ``1e-6``, ``true``, ``[32,32]``, ``{"max_iter":50}``) and as a string otherwise
+(:func:`~myriad.runtime.configs.parse_value`, also the rule of every command's ``--set KEY=VALUE``)::
 
     solve                                            # the published setting
     trap20=solve:transcription=trapezoidal,intervals=20
@@ -11,10 +13,10 @@ JSON when it parses (``20``, ``1e-6``, ``true``, ``[32,32]``, ``{"max_iter":50}`
 from __future__ import annotations
 
 import dataclasses
-import json
 from typing import Any
 
 from ..cache import DEFAULT_CACHE_DIR  # one folder for the workers and the commands; `~` expanded per node
+from ..configs import parse_value
 from .kinds import KINDS
 
 __all__ = ["DEFAULT_CACHE_DIR", "Method", "SweepConfig", "parse_method"]
@@ -61,13 +63,6 @@ def _split(text: str) -> list[str]:
     return [*parts, text[start:]]
 
 
-def _value(text: str) -> Any:
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
-
-
 def parse_method(text: str) -> Method:
     """A :class:`Method` from ``[NAME=]KIND[:KEY=VALUE,...]`` (module docstring); the name defaults to the text.
 
@@ -87,7 +82,7 @@ def parse_method(text: str) -> Method:
                 raise ValueError(f"method {text!r}: expected KEY=VALUE, got {item!r}")
             if key.strip() in settings:
                 raise ValueError(f"method {text!r}: {key.strip()!r} given twice")
-            settings[key.strip()] = _value(value.strip())
+            settings[key.strip()] = parse_value(value.strip())
     return Method(name=body if name is None else name, kind=kind.strip(), settings=settings)
 
 

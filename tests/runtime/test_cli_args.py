@@ -10,8 +10,9 @@ import pytest
 
 import myriad.runtime
 import myriad.runtime.bench
-from myriad.runtime.cli import _methods, _takes_integrator, main
+from myriad.runtime.cli import main
 from myriad.runtime.integrators import INTEGRATORS
+from myriad.runtime.solve_config import METHODS, takes_integrator
 from myriad.runtime.solvers import SOLVERS
 
 
@@ -36,8 +37,8 @@ def _usage_error(capsys, argv) -> str:
     return err
 
 
-_NO_SOLVER = [name for name, cls in _methods().items() if not cls.uses_solver]
-_NO_INTEGRATOR = [name for name, cls in _methods().items() if not _takes_integrator(cls)]
+_NO_SOLVER = [name for name, cls in METHODS.items() if not cls.uses_solver]
+_NO_INTEGRATOR = [name for name, cls in METHODS.items() if not takes_integrator(cls)]
 _FIXED_STEP = [name for name, cls in INTEGRATORS.items() if cls.fixed_step]
 
 
@@ -62,7 +63,8 @@ def test_an_integrator_for_a_method_without_one_is_refused(capsys, method, integ
 
 @pytest.mark.parametrize("intervals", ["0", "-3"])
 def test_a_grid_without_intervals_is_refused(capsys, intervals):
-    assert "--intervals must be at least 1" in _usage_error(capsys, ["solve", "van_der_pol", "--intervals", intervals])
+    err = _usage_error(capsys, ["solve", "van_der_pol", "--intervals", intervals])
+    assert "--intervals must be an integer >= 1" in err
 
 
 @pytest.mark.parametrize("tolerance", ["0", "-1e-6", "nan"])

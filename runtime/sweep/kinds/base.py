@@ -1,16 +1,17 @@
 """What a kind of sweep method is: checked settings, an optional check against a system, and one run.
 
-A kind is one file (a final subclass of :class:`AbstractKind` with a frozen ``Settings`` dataclass) plus one line in
-``KINDS`` (``kinds/__init__.py``); see the sweep README.
+A kind is one file (a final subclass of :class:`AbstractKind` naming its frozen config class, the one the Python API
+and the command use, e.g. :class:`~myriad.runtime.solve_config.SolveConfig`) plus one line in ``KINDS``
+(``kinds/__init__.py``); see the sweep README.
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
-import json
 from typing import Any, ClassVar, Mapping
 
+from ...configs import build, to_json
 from ...system import System, UnsupportedFeature
 
 __all__ = ["AbstractKind", "Outcome", "RESERVED", "refuse_unsupported"]
@@ -35,8 +36,9 @@ class AbstractKind(abc.ABC):
 
     Class attributes:
         name: the registry name (the ``KIND`` of ``--method KIND:...``).
-        Settings: a frozen dataclass with a default for every field; its ``__post_init__`` raises ``ValueError`` for
-            a bad value, without loading any system, so that a sweep is checked before any work.
+        Settings: the kind's config, a frozen dataclass with a default for every field; its ``__post_init__`` raises
+            ``ValueError`` for a bad value, without loading any system, so that a sweep is checked before any work.
+            A field ``seed`` is the task's seed, not a setting.
         columns: the record fields the printed (Markdown) table shows for this kind; the JSON and CSV have them all.
     """
 
@@ -50,16 +52,26 @@ class AbstractKind(abc.ABC):
         Raises:
             ValueError: an unknown name (the known ones are listed) or a bad value.
         """
-        known = [f.name for f in dataclasses.fields(self.Settings)]
+        known = [f.name for f in dataclasses.fields(self.Settings) if f.name != "seed"]
         unknown = sorted(set(settings) - set(known))
         if unknown:
             raise ValueError(f"{self.name}: unknown settings {unknown}; known: {', '.join(known)}")
+        # As JSON, so a record's settings are the same objects on every backend and in the written file.
+        return to_json(self.config(settings, seed=0), skip=("seed",))
+
+    def config(self, settings: Mapping[str, Any], seed: int) -> Any:
+        """The config of these settings, with the task's ``seed`` where the config has one.
+
+        Raises:
+            ValueError: a bad value, prefixed with the kind's name.
+        """
+        given = dict(settings)
+        if any(f.name == "seed" for f in dataclasses.fields(self.Settings)):
+            given["seed"] = seed
         try:
-            parsed = self.Settings(**settings)
-        except TypeError as exc:  # e.g. a list where a number belongs, inside the dataclass's own checks
+            return build(self.Settings, given)
+        except ValueError as exc:
             raise ValueError(f"{self.name}: {exc}") from None
-        # Through JSON once, so a record's settings are the same objects on every backend and in the written file.
-        return json.loads(json.dumps(dataclasses.asdict(parsed)))
 
     def check_system(self, system: System, settings: dict[str, Any]) -> None:
         """Raise ``ValueError`` if these (checked) settings cannot run on ``system`` (e.g. it has nothing to learn).

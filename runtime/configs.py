@@ -1,0 +1,262 @@
+"""A frozen dataclass config is a command's interface: its fields, types, defaults and docstring make the flags.
+
+One config per command serves the Python API, the CLI and the sweep as it is; nothing restates its fields::
+
+    add_arguments(parser, SolveConfig, spelled={"intervals": ("--intervals", "--controls")})
+    config = from_args(SolveConfig, parser.parse_args(argv))  # ValueError: a usage error (usage_message)
+    config = build(SolveConfig, {"transcription": "trapezoidal", "intervals": 20})  # the sweep's KEY=VALUE
+
+Each field becomes ``--field-name``, typed from its annotation: ``bool`` -> ``--x``/``--no-x``; ``int``, ``float``,
+``str`` (or None) -> one value; ``tuple[X, ...]`` -> one or more; a ``Literal`` or an ``Enum`` -> its choices;
+anything else (a mapping, a nested config, an object) -> one JSON value. Its help is the field's entry in the
+docstring's ``Attributes:`` section. ``--set KEY=VALUE`` (repeatable) sets any field, a nested config's field by a
+dotted key (``--set fit.epochs=200``); a VALUE is read as JSON when it parses, else as a plain word
+(:func:`parse_value`, also the sweep's rule). Flags only pass on what was given, so the defaults live in the config
+alone, and so does validation: its ``__post_init__`` raises ``ValueError``, which the commands report as a usage
+error (exit 2) naming the flag (:func:`usage_message`). A plain-argparse module rather than a library (tyro): the
+commands keep their flag spellings and parsers, and the sweep shares the parsing of values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import enum
+import inspect
+import json
+import re
+import types
+import typing
+from typing import Any, Mapping
+
+__all__ = ["FieldError", "add_arguments", "build", "field_docs", "flag", "from_args", "parse_value", "to_json",
+           "usage_message"]
+
+
+class FieldError(ValueError):
+    """A bad value of ``fields``; the message names them as words (``"intervals must be ..."``), which a command
+    respells as its flags (:func:`usage_message`)."""
+
+    def __init__(self, message: str, *fields: str):
+        super().__init__(message)
+        self.fields = fields
+
+
+def parse_value(text: str) -> Any:
+    """``text`` read as JSON when it parses (``20``, ``1e-6``, ``true``, ``null``, ``[32,32]``, ``{"tol":1e-6}``),
+    else the text itself (a plain word such as ``trapezoidal``)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's entry in the docstring's ``Attributes:`` section (``a, b: text`` documents both), one line."""
+    docs, names, indent, section = {}, [], None, False
+    for line in inspect.cleandoc(cls.__doc__ or "").splitlines():
+        stripped, depth = line.strip(), len(line) - len(line.lstrip())
+        if re.fullmatch(r"[A-Z][\w ]*:", stripped) and (indent is None or depth < indent):
+            section, indent = stripped == "Attributes:", None  # "Raises:" and the like end the attributes
+            continue
+        entry = re.fullmatch(r"([\w, ]+):\s(.*)", stripped) if section and indent in (None, depth) else None
+        if entry and all(n.strip().isidentifier() for n in entry[1].split(",")):
+            names, indent = [n.strip() for n in entry[1].split(",")], depth
+            docs.update(dict.fromkeys(names, entry[2].strip()))
+        elif section and stripped and names and depth > indent:
+            for n in names:
+                docs[n] += " " + stripped
+    return docs
+
+
+def _options(hint: Any) -> tuple[Any, bool]:
+    """``(the hint without None, whether None is allowed)``."""
+    args = typing.get_args(hint)
+    if typing.get_origin(hint) in (typing.Union, types.UnionType) and type(None) in args:
+        rest = tuple(a for a in args if a is not type(None))
+        return (rest[0] if len(rest) == 1 else typing.Union[rest]), True
+    return hint, False
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def flag(name: str, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:
+    """The flag of field ``name`` (``x0_std`` -> ``--x0-std``), or its first spelling in ``spelled``; a nested
+    field (``fit.epochs``) is set by ``--set fit.epochs=...``."""
+    if spelled and name in spelled:
+        return spelled[name][0]
+    return f"--set {name}" if "." in name else "--" + name.replace("_", "-")
+
+
+def add_arguments(parser: argparse.ArgumentParser, cls: type, *, spelled: Mapping[str, tuple[str, ...]] | None = None,
+                  choices: Mapping[str, list] | None = None, metavars: Mapping[str, str] | None = None,
+                  skip: tuple[str, ...] = ()) -> None:
+    """One flag per field of ``cls`` (module docstring) and ``--set KEY=VALUE``.
+
+    Args:
+        spelled: a field's flag spellings where they are not ``--field-name`` (kept for old command lines).
+        choices: a field's choices where its type does not say them (e.g. names from a registry).
+        metavars: a field's metavar in the usage line.
+        skip: fields with no flag of their own (still settable by ``--set``).
+    """
+    docs, hints = field_docs(cls), _hints(cls)
+    spelled, choices, metavars = spelled or {}, choices or {}, metavars or {}
+    for f in dataclasses.fields(cls):
+        if f.name in skip or not f.init:
+            continue
+        kwargs: dict[str, Any] = {"dest": f.name, "default": argparse.SUPPRESS}
+        hint, _ = _options(hints[f.name])
+        origin = typing.get_origin(hint)
+        if hint is bool:
+            kwargs["action"] = argparse.BooleanOptionalAction
+        elif hint in (int, float, str):
+            kwargs["type"] = hint
+        elif origin is tuple and typing.get_args(hint)[1:] == (Ellipsis,) and typing.get_args(hint)[0] in (int, float,
+                                                                                                            str):
+            kwargs.update(type=typing.get_args(hint)[0], nargs="+")
+        elif origin is typing.Literal:
+            kwargs["choices"] = list(typing.get_args(hint))
+        elif isinstance(hint, type) and issubclass(hint, enum.Enum):
+            kwargs["choices"] = [m.value for m in hint]
+        else:
+            kwargs.update(type=parse_value, metavar="JSON")
+        if f.name in choices:
+            kwargs["choices"] = list(choices[f.name])
+        if f.name in metavars:
+            kwargs["metavar"] = metavars[f.name]
+        kwargs["help"] = _help(docs.get(f.name, ""), f)
+        parser.add_argument(*spelled.get(f.name, (flag(f.name),)), **kwargs)
+    parser.add_argument("--set", dest="set_", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"set any field of {cls.__name__} (a nested one by a dotted KEY); VALUE is JSON or a "
+                             "plain word, e.g. --set solver_options='{\"max_iter\": 50}'")
+
+
+def _help(text: str, f: dataclasses.Field) -> str:
+    default = f.default if f.default is not dataclasses.MISSING else None
+    text = text.rstrip(".")
+    if "default" not in text and default not in (None, (), "") and not isinstance(default, bool):
+        text = f"{text} (default: {default})"
+    text = re.sub(r":\w+:`~?(?:[\w.]*\.)?(\w+)`", r"\1", text).replace("``", "")  # reST roles and literals
+    return text.replace("%", "%%")  # argparse formats help with %
+
+
+def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
+    """The config of the parsed flags and ``--set`` items (``given`` adds values that have no flag, e.g. a seed).
+
+    Raises:
+        ValueError: a malformed ``--set``, an unknown field, or a value the config refuses.
+    """
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
+    for item in getattr(args, "set_", None) or ():
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+        values[key.strip()] = parse_value(text.strip())
+    return build(cls, {**values, **given})
+
+
+def build(cls: type, values: Mapping[str, Any], base: Any = None) -> Any:
+    """``cls(**values)`` with the values read as the annotations say (a list as a tuple, a word as an enum member,
+    a mapping as a nested config; ``"a.b"`` keys set a nested config's fields), over ``base``'s values if given.
+
+    Raises:
+        ValueError: an unknown field (the known ones are listed) or a value the config refuses.
+    """
+    hints, names = _hints(cls), [f.name for f in dataclasses.fields(cls) if f.init]
+    nested: dict[str, dict[str, Any]] = {}
+    flat = {}
+    for key, value in values.items():
+        head, dot, rest = key.partition(".")
+        if head not in names:
+            raise ValueError(f"unknown field {key!r} of {cls.__name__}; known: {', '.join(names)}")
+        if dot:
+            nested.setdefault(head, {})[rest] = value
+        else:
+            flat[key] = value
+    for head, sub in nested.items():
+        start = flat.get(head, getattr(base, head) if base is not None else _default(cls, head))
+        try:
+            flat[head] = _nested(hints[head], start, sub)
+        except FieldError as exc:  # named by its dotted key, which the commands spell `--set head.name`
+            message = str(exc)
+            for name in exc.fields:
+                message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w-])", f"{head}.{name}", message)
+            raise FieldError(message, *(f"{head}.{name}" for name in exc.fields)) from None
+    kwargs = {k: _read(hints[k], v) for k, v in flat.items()}
+    try:
+        return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
+    except TypeError as exc:  # e.g. a comparison of a word with a number inside the config's own checks
+        raise ValueError(f"{cls.__name__}: {exc}") from None
+
+
+def _default(cls: type, name: str) -> Any:
+    f = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+
+
+def _nested(hint: Any, start: Any, values: dict[str, Any]) -> Any:
+    """A nested config with ``values`` set: over ``start`` when it is one, else a new one of the annotated type."""
+    if dataclasses.is_dataclass(start) and not isinstance(start, type):
+        return build(type(start), values, base=start)
+    if isinstance(start, Mapping):
+        return {**start, **values}
+    kind = _dataclass_of(hint)
+    if kind is None:
+        raise FieldError(f"{hint} has no fields to set by a dotted key", *values)
+    return build(kind, values)
+
+
+def _dataclass_of(hint: Any) -> type | None:
+    hint, _ = _options(hint)
+    candidates = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    return next((c for c in candidates if dataclasses.is_dataclass(c)), None)
+
+
+def _read(hint: Any, value: Any) -> Any:
+    """``value`` (from JSON or a flag) as ``hint`` says, where it says more than JSON can: a tuple, an enum member,
+    a nested config; anything else is passed on for the config's own checks."""
+    hint, _ = _options(hint)
+    origin = typing.get_origin(hint)
+    if origin is tuple and isinstance(value, list):
+        inner = typing.get_args(hint)
+        return tuple(_read(inner[0] if inner[1:] == (Ellipsis,) else Any, v) for v in value)
+    if isinstance(hint, type) and issubclass(hint, enum.Enum) and not isinstance(value, hint):
+        try:
+            return hint(value)
+        except ValueError:
+            return value  # the config names the field and the choices
+    kind = _dataclass_of(hint)
+    if kind is not None and isinstance(value, Mapping):
+        return build(kind, value)
+    return value
+
+
+def to_json(config: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
+    """The fields of ``config`` as JSON-native values (lists, enum values, nested configs as mappings)."""
+    def native(v):
+        if isinstance(v, enum.Enum):
+            return v.value
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: native(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (list, tuple)):
+            return [native(x) for x in v]
+        if isinstance(v, Mapping):
+            return {k: native(x) for k, x in v.items()}
+        return v
+
+    return json.loads(json.dumps({f.name: native(getattr(config, f.name)) for f in dataclasses.fields(config)
+                                  if f.name not in skip}))
+
+
+def usage_message(exc: Exception, cls: type, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:
+    """A ``cls`` config's ``ValueError`` in a command's words: the fields it names (a :class:`FieldError`'s, or the
+    field that starts the message) as their flags, e.g. ``intervals must be ...`` -> ``--intervals must be ...``."""
+    message = str(exc)
+    names = {f.name for f in dataclasses.fields(cls)}
+    first = re.match(r"[a-z][a-z0-9_]*(?= )", message)
+    fields = getattr(exc, "fields", ()) or ((first[0],) if first and first[0] in names else ())
+    for name in fields:
+        message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w-])", lambda _: flag(name, spelled), message)
+    return message

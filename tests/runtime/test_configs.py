@@ -1,0 +1,192 @@
+"""The config is the interface: every field of every command's config is settable from the shell (by its flag and
+by ``--set``), documented, and a bad value is a usage error (exit 2) that names the field."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from typing import Literal
+
+import pytest
+
+import myriad.runtime
+from myriad.runtime.cli import _parser, main
+from myriad.runtime.configs import FieldError, build, field_docs, from_args, parse_value, to_json, usage_message
+from myriad.runtime.solve_config import METHODS, SolveConfig
+from myriad.runtime.sweep import parse_method
+
+
+class _Reached(BaseException):
+    """Raised by the replaced loader: a usage error must come before any system is loaded."""
+
+
+@pytest.fixture(autouse=True)
+def no_work(monkeypatch):
+    def reached(*args, **kwargs):
+        raise _Reached
+
+    monkeypatch.setattr(myriad.runtime, "load", reached)
+
+
+# Per command: its config, the words before the options, and a non-default value (as shell words) for EVERY field:
+# a field added without one here fails test_every_field_has_a_sample, so none can be left out of the shell.
+COMMANDS = {
+    "solve": (SolveConfig, ["solve", "van_der_pol"], {
+        "transcription": "multiple_shooting", "solver": "ipopt", "integrator": "rk4", "intervals": "20",
+        "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": "3", "max_intervals": "500",
+        "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
+}
+
+
+def _subparser(command):
+    return _parser(command)._subparsers._group_actions[0].choices[command]
+
+
+def _flags(command) -> dict[str, list[str]]:
+    return {a.dest: a.option_strings for a in _subparser(command)._actions if a.option_strings}
+
+
+def _parse(command, words):
+    cls, head, _ = COMMANDS[command]
+    return from_args(cls, _parser(command).parse_args([*head, *words]))
+
+
+def _flag_words(flag, text):
+    if text in ("true", "false"):  # a boolean field: --x / --no-x
+        return [flag if text == "true" else "--no-" + flag[2:]]
+    return [flag, *text.split()] if not text.startswith(("{", "[")) else [flag, text]
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_every_field_has_a_sample_and_a_help_text(command):
+    cls, _, samples = COMMANDS[command]
+    names = [f.name for f in dataclasses.fields(cls)]
+    assert sorted(samples) == sorted(names)
+    docs = field_docs(cls)
+    assert all(docs.get(n) for n in names), [n for n in names if not docs.get(n)]
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_every_field_is_settable_by_its_flag_and_by_set(command):
+    cls, _, samples = COMMANDS[command]
+    flags = _flags(command)
+    by_flags, by_set = [], []
+    for name, text in samples.items():
+        if name in flags:
+            by_flags += _flag_words(flags[name][0], text)
+        else:
+            by_flags += ["--set", f"{name}={text}"]
+        by_set += ["--set", f"{name}={text}"]
+    default = cls()
+    for words in (by_flags, by_set):
+        config = _parse(command, words)
+        for name, text in samples.items():
+            value = getattr(config, name)
+            assert value != getattr(default, name), name
+            assert to_json(config)[name] == parse_value(text) or str(value) == text, name
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_no_flag_means_the_configs_own_defaults(command):
+    cls, _, _ = COMMANDS[command]
+    assert _parse(command, []) == cls()
+
+
+def test_solve_flags_keep_their_spellings():
+    flags = _flags("solve")
+    assert flags["intervals"] == ["--intervals", "--controls"]
+    for name in ("transcription", "solver", "integrator", "tolerance", "max_refinements", "max_intervals"):
+        assert flags[name] == ["--" + name.replace("_", "-")]
+    assert _parse("solve", ["--controls", "30", "--transcription", "fbsm"]) == SolveConfig("fbsm", intervals=30)
+
+
+@pytest.mark.parametrize("item, flag", [
+    ("intervals=0", "--intervals"),
+    ("x0_std=abc", "--x0-std"),
+    ("solver_options=[1]", "--solver-options"),
+    ("tolerance=-1", "--tolerance"),
+    ("resimulate=3", "--resimulate"),
+])
+def test_a_bad_set_value_is_a_usage_error_naming_the_field(capsys, item, flag):
+    assert main(["solve", "van_der_pol", "--set", item]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("myriad: error: ") and flag in err, err
+
+
+@pytest.mark.parametrize("item, words", [("nope=1", "unknown field 'nope'"), ("intervals", "--set expects KEY=VALUE")])
+def test_a_malformed_set_is_a_usage_error(capsys, item, words):
+    assert main(["solve", "van_der_pol", "--set", item]) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_the_sweep_and_the_cli_build_the_same_config():
+    method = parse_method('solve:transcription=trapezoidal,intervals=20,solver_options={"max_iter":50}')
+    from myriad.runtime.sweep.kinds import KINDS
+
+    config = KINDS["solve"]().config(method.settings, seed=4)
+    assert config == _parse("solve", ["--transcription", "trapezoidal", "--intervals", "20", "--set",
+                                      'solver_options={"max_iter":50}', "--seed", "4"])
+    assert "seed" not in method.settings and config.build()[0] == METHODS["trapezoidal"].on_grid(20)
+
+
+# The mechanism on a small config of its own: a tuple, an enum, a literal, a nested config and its docstring.
+class Colour(enum.Enum):
+    RED = "red"
+    BLUE = "blue"
+
+
+@dataclasses.dataclass(frozen=True)
+class Inner:
+    """Attributes:
+        rate: a rate > 0.
+    """
+
+    rate: float = 1.0
+
+    def __post_init__(self):
+        if not self.rate > 0:
+            raise FieldError(f"rate must be > 0, got {self.rate}", "rate")
+
+
+@dataclasses.dataclass(frozen=True)
+class Outer:
+    """A test config.
+
+    Attributes:
+        widths: layer widths,
+            one or more.
+        colour, shade: what it looks like.
+        inner: a nested config.
+        opt: maybe an inner.
+    Raises:
+        ValueError: never here.
+    """
+
+    widths: tuple[int, ...] = (2, 3)
+    colour: Colour = Colour.RED
+    shade: Literal["dark", "light"] = "dark"
+    inner: Inner = Inner()
+    opt: Inner | None = None
+
+
+def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
+    import argparse
+
+    assert field_docs(Outer) == {"widths": "layer widths, one or more.", "colour": "what it looks like.",
+                                 "shade": "what it looks like.", "inner": "a nested config.",
+                                 "opt": "maybe an inner."}
+    p = argparse.ArgumentParser()
+    from myriad.runtime.configs import add_arguments
+
+    add_arguments(p, Outer)
+    args = p.parse_args(["--widths", "4", "5", "--colour", "blue", "--shade", "light", "--set", "inner.rate=2",
+                         "--set", 'opt={"rate": 3}'])
+    assert from_args(Outer, args) == Outer((4, 5), Colour.BLUE, "light", Inner(2.0), Inner(3))
+    assert build(Outer, {"opt.rate": 5}) == Outer(opt=Inner(5))
+    assert to_json(Outer()) == {"widths": [2, 3], "colour": "red", "shade": "dark", "inner": {"rate": 1.0},
+                                "opt": None}
+    with pytest.raises(ValueError) as info:
+        build(Outer, {"inner.rate": -1})
+    assert usage_message(info.value, Outer) == "--set inner.rate must be > 0, got -1"
+    with pytest.raises(ValueError, match="unknown field 'colr'"):
+        build(Outer, {"colr": "red"})
