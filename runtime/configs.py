@@ -29,8 +29,8 @@ import types
 import typing
 from typing import Any, Mapping
 
-__all__ = ["FieldError", "add_arguments", "build", "field_docs", "flag", "from_args", "parse_value", "to_json",
-           "usage_message"]
+__all__ = ["FieldError", "add_arguments", "build", "defaults", "field_docs", "flag", "from_args", "parse_value",
+           "to_json", "usage_message"]
 
 
 class FieldError(ValueError):
@@ -202,24 +202,32 @@ def _nested(hint: Any, start: Any, values: dict[str, Any]) -> Any:
         return build(type(start), values, base=start)
     if isinstance(start, Mapping):
         return {**start, **values}
-    kind = _dataclass_of(hint)
-    if kind is None:
+    kinds = _dataclasses_of(hint)
+    if not kinds:
         raise FieldError(f"{hint} has no fields to set by a dotted key", *values)
-    return build(kind, values)
+    return build(kinds[0], values)
 
 
-def _dataclass_of(hint: Any) -> type | None:
+def _dataclasses_of(hint: Any) -> list[type]:
     hint, _ = _options(hint)
     candidates = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
-    return next((c for c in candidates if dataclasses.is_dataclass(c)), None)
+    return [c for c in candidates if dataclasses.is_dataclass(c)]
+
+
+def _word(cls: type) -> str | None:
+    """The name a class answers to in a value: its class attribute ``label`` (solvers, methods) or ``name``
+    (adjoints)."""
+    fields = {f.name for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else set()
+    word = next((getattr(cls, a) for a in ("label", "name") if a not in fields and hasattr(cls, a)), None)
+    return word if isinstance(word, str) else None
 
 
 def _read(hint: Any, value: Any) -> Any:
     """``value`` (from JSON or a flag) as ``hint`` says, where it says more than JSON can: a tuple, an enum member,
-    a nested config; anything else is passed on for the config's own checks."""
+    a nested config (a mapping; ``"type"`` picks one class of a union by its word, as does a plain word alone);
+    anything else is passed on for the config's own checks."""
     hint, _ = _options(hint)
-    origin = typing.get_origin(hint)
-    if origin is tuple and isinstance(value, list):
+    if typing.get_origin(hint) is tuple and isinstance(value, list):
         inner = typing.get_args(hint)
         return tuple(_read(inner[0] if inner[1:] == (Ellipsis,) else Any, v) for v in value)
     if isinstance(hint, type) and issubclass(hint, enum.Enum) and not isinstance(value, hint):
@@ -227,27 +235,38 @@ def _read(hint: Any, value: Any) -> Any:
             return hint(value)
         except ValueError:
             return value  # the config names the field and the choices
-    kind = _dataclass_of(hint)
-    if kind is not None and isinstance(value, Mapping):
-        return build(kind, value)
+    kinds = _dataclasses_of(hint)
+    named = {_word(k): k for k in kinds if _word(k)}
+    if isinstance(value, str) and value in named:
+        return named[value]()
+    if kinds and isinstance(value, Mapping):
+        rest = {k: v for k, v in value.items() if k != "type"}
+        return build(named.get(value.get("type"), kinds[0]), rest)
     return value
 
 
-def to_json(config: Any, skip: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The fields of ``config`` as JSON-native values (lists, enum values, nested configs as mappings)."""
-    def native(v):
+def to_json(value: Any, skip: tuple[str, ...] = ()) -> Any:
+    """``value`` as JSON-native data: a config as the mapping of its fields (``skip`` left out of the outer one;
+    ``"type"``: its word, where it has one), tuples as lists, enum members as their values."""
+    def native(v, leave=()):
         if isinstance(v, enum.Enum):
             return v.value
         if dataclasses.is_dataclass(v) and not isinstance(v, type):
-            return {f.name: native(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            word = {"type": _word(type(v))} if _word(type(v)) else {}
+            return {**word, **{f.name: native(getattr(v, f.name)) for f in dataclasses.fields(v)
+                               if f.name not in leave}}
         if isinstance(v, (list, tuple)):
             return [native(x) for x in v]
         if isinstance(v, Mapping):
             return {k: native(x) for k, x in v.items()}
         return v
 
-    return json.loads(json.dumps({f.name: native(getattr(config, f.name)) for f in dataclasses.fields(config)
-                                  if f.name not in skip}))
+    return json.loads(json.dumps(native(value, skip)))
+
+
+def defaults(cls: type) -> dict[str, Any]:
+    """Every field's default."""
+    return {f.name: _default(cls, f.name) for f in dataclasses.fields(cls) if f.init}
 
 
 def usage_message(exc: Exception, cls: type, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from typing import Literal
+from typing import ClassVar, Literal
 
 import pytest
 
@@ -129,7 +129,7 @@ def test_the_sweep_and_the_cli_build_the_same_config():
     assert "seed" not in method.settings and config.build()[0] == METHODS["trapezoidal"].on_grid(20)
 
 
-# The mechanism on a small config of its own: a tuple, an enum, a literal, a nested config and its docstring.
+# The mechanism on a small config of its own: a tuple, an enum, a literal, nested configs and its docstring.
 class Colour(enum.Enum):
     RED = "red"
     BLUE = "blue"
@@ -149,6 +149,18 @@ class Inner:
 
 
 @dataclasses.dataclass(frozen=True)
+class Fast:
+    name: ClassVar[str] = "fast"
+    steps: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Slow:
+    name: ClassVar[str] = "slow"
+    patience: int = 3
+
+
+@dataclasses.dataclass(frozen=True)
 class Outer:
     """A test config.
 
@@ -158,6 +170,7 @@ class Outer:
         colour, shade: what it looks like.
         inner: a nested config.
         opt: maybe an inner.
+        way: fast or slow, by its word.
     Raises:
         ValueError: never here.
     """
@@ -167,6 +180,7 @@ class Outer:
     shade: Literal["dark", "light"] = "dark"
     inner: Inner = Inner()
     opt: Inner | None = None
+    way: Fast | Slow = Fast()
 
 
 def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
@@ -174,7 +188,7 @@ def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
 
     assert field_docs(Outer) == {"widths": "layer widths, one or more.", "colour": "what it looks like.",
                                  "shade": "what it looks like.", "inner": "a nested config.",
-                                 "opt": "maybe an inner."}
+                                 "opt": "maybe an inner.", "way": "fast or slow, by its word."}
     p = argparse.ArgumentParser()
     from myriad.runtime.configs import add_arguments
 
@@ -182,9 +196,12 @@ def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
     args = p.parse_args(["--widths", "4", "5", "--colour", "blue", "--shade", "light", "--set", "inner.rate=2",
                          "--set", 'opt={"rate": 3}'])
     assert from_args(Outer, args) == Outer((4, 5), Colour.BLUE, "light", Inner(2.0), Inner(3))
-    assert build(Outer, {"opt.rate": 5}) == Outer(opt=Inner(5))
+    assert build(Outer, {"opt.rate": 5, "way": "slow"}) == Outer(opt=Inner(5), way=Slow())
+    assert build(Outer, {"way": {"type": "slow", "patience": 7}}).way == Slow(7)
+    assert build(Outer, {"way.steps": 4}).way == Fast(4)
     assert to_json(Outer()) == {"widths": [2, 3], "colour": "red", "shade": "dark", "inner": {"rate": 1.0},
-                                "opt": None}
+                                "opt": None, "way": {"type": "fast", "steps": None}}
+    assert build(Outer, to_json(Outer(way=Slow(5)))) == Outer(way=Slow(5))  # the JSON reads back
     with pytest.raises(ValueError) as info:
         build(Outer, {"inner.rate": -1})
     assert usage_message(info.value, Outer) == "--set inner.rate must be > 0, got -1"

@@ -11,7 +11,7 @@ import abc
 import dataclasses
 from typing import Any, ClassVar, Mapping
 
-from ...configs import build, to_json
+from ...configs import build, defaults, to_json
 from ...system import System, UnsupportedFeature
 
 __all__ = ["AbstractKind", "Outcome", "RESERVED", "refuse_unsupported"]
@@ -56,8 +56,10 @@ class AbstractKind(abc.ABC):
         unknown = sorted(set(settings) - set(known))
         if unknown:
             raise ValueError(f"{self.name}: unknown settings {unknown}; known: {', '.join(known)}")
-        # As JSON, so a record's settings are the same objects on every backend and in the written file.
-        return to_json(self.config(settings, seed=0), skip=("seed",))
+        self.config(settings, seed=0)
+        # The given settings completed with the defaults, not the config's resolved values (a default that depends
+        # on another setting stays None), as JSON: the same objects on every backend and in the written file.
+        return to_json({**{k: v for k, v in defaults(self.Settings).items() if k != "seed"}, **settings})
 
     def config(self, settings: Mapping[str, Any], seed: int) -> Any:
         """The config of these settings, with the task's ``seed`` where the config has one.
@@ -65,7 +67,9 @@ class AbstractKind(abc.ABC):
         Raises:
             ValueError: a bad value, prefixed with the kind's name.
         """
-        given = dict(settings)
+        # A setting at its default's JSON is left to the config (an object such as an integrator reads back from
+        # its JSON only by name).
+        given = {k: v for k, v in settings.items() if v != to_json(defaults(self.Settings).get(k))}
         if any(f.name == "seed" for f in dataclasses.fields(self.Settings)):
             given["seed"] = seed
         try:
