@@ -78,10 +78,6 @@ def _options(hint: Any) -> tuple[Any, bool]:
     return hint, False
 
 
-def _hints(cls: type) -> dict[str, Any]:
-    return typing.get_type_hints(cls)
-
-
 def flag(name: str, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:
     """The flag of field ``name`` (``x0_std`` -> ``--x0-std``), or its first spelling in ``spelled``; a nested
     field (``fit.epochs``) is set by ``--set fit.epochs=...``."""
@@ -101,27 +97,12 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, *, spelled: Mappin
         metavars: a field's metavar in the usage line.
         skip: fields with no flag of their own (still settable by ``--set``).
     """
-    docs, hints = field_docs(cls), _hints(cls)
+    docs, hints = field_docs(cls), typing.get_type_hints(cls)
     spelled, choices, metavars = spelled or {}, choices or {}, metavars or {}
     for f in dataclasses.fields(cls):
         if f.name in skip or not f.init:
             continue
-        kwargs: dict[str, Any] = {"dest": f.name, "default": argparse.SUPPRESS}
-        hint, _ = _options(hints[f.name])
-        origin = typing.get_origin(hint)
-        if hint is bool:
-            kwargs["action"] = argparse.BooleanOptionalAction
-        elif hint in (int, float, str):
-            kwargs["type"] = hint
-        elif origin is tuple and typing.get_args(hint)[1:] == (Ellipsis,) and typing.get_args(hint)[0] in (int, float,
-                                                                                                            str):
-            kwargs.update(type=typing.get_args(hint)[0], nargs="+")
-        elif origin is typing.Literal:
-            kwargs["choices"] = list(typing.get_args(hint))
-        elif isinstance(hint, type) and issubclass(hint, enum.Enum):
-            kwargs["choices"] = [m.value for m in hint]
-        else:
-            kwargs.update(type=parse_value, metavar="JSON")
+        kwargs = {"dest": f.name, "default": argparse.SUPPRESS, **_kind(hints[f.name])}
         if f.name in choices:
             kwargs["choices"] = list(choices[f.name])
         if f.name in metavars:
@@ -129,8 +110,25 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, *, spelled: Mappin
         kwargs["help"] = _help(docs.get(f.name, ""), f)
         parser.add_argument(*spelled.get(f.name, (flag(f.name),)), **kwargs)
     parser.add_argument("--set", dest="set_", action="append", default=[], metavar="KEY=VALUE",
-                        help=f"set any field of {cls.__name__} (a nested one by a dotted KEY); VALUE is JSON or a "
-                             "plain word, e.g. --set solver_options='{\"max_iter\": 50}'")
+                        help=f"set any field of {cls.__name__}, a nested config's by a dotted KEY; VALUE is JSON or a "
+                             "plain word")
+
+
+def _kind(hint: Any) -> dict[str, Any]:
+    """The argparse keywords of a field's annotation (module docstring)."""
+    hint, _ = _options(hint)
+    args = typing.get_args(hint)
+    if hint is bool:
+        return {"action": argparse.BooleanOptionalAction}
+    if hint in (int, float, str):
+        return {"type": hint}
+    if typing.get_origin(hint) is tuple and args[1:] == (Ellipsis,) and args[0] in (int, float, str):
+        return {"type": args[0], "nargs": "+"}
+    if typing.get_origin(hint) is typing.Literal:
+        return {"choices": list(args)}
+    if isinstance(hint, type) and issubclass(hint, enum.Enum):
+        return {"choices": [m.value for m in hint]}
+    return {"type": parse_value, "metavar": "JSON"}
 
 
 def _help(text: str, f: dataclasses.Field) -> str:
@@ -164,7 +162,7 @@ def build(cls: type, values: Mapping[str, Any], base: Any = None) -> Any:
     Raises:
         ValueError: an unknown field (the known ones are listed) or a value the config refuses.
     """
-    hints, names = _hints(cls), [f.name for f in dataclasses.fields(cls) if f.init]
+    hints, names = typing.get_type_hints(cls), [f.name for f in dataclasses.fields(cls) if f.init]
     nested: dict[str, dict[str, Any]] = {}
     flat = {}
     for key, value in values.items():
