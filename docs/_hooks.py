@@ -9,6 +9,9 @@ the repository's READMEs included in pages, and links that leave ``docs/``.
   ``--8<-- [start:solving]`` and ``--8<-- [end:solving]`` (HTML comments there; ``--8<-- "specs/README.md"``: the
   whole file), so the guide and the README say the same thing from one text. A missing file or section fails the
   build.
+- Docstrings are Google style with reST's ``.. math::`` blocks and ``:class:`` / ``:func:`` / ``:meth:`` / ``:mod:``
+  roles. A Markdown preprocessor (added to every page and to mkdocstrings' rendering) turns the blocks into
+  arithmatex's ``\\[ ... \\]`` (typeset by MathJax) and the roles into code spans.
 - Links are written for GitHub, relative to the file they are in. One into ``docs/`` is rewritten relative to the
   page; one to a file outside ``docs/`` (a module's README, a spec) has no copy in the site, and ``--strict`` fails on
   a link it cannot resolve, so it becomes the repository path in code. A broken link inside the site still fails.
@@ -24,6 +27,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from markdown import Extension
+from markdown.preprocessors import Preprocessor
 from mkdocs.exceptions import PluginError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -41,6 +46,46 @@ def _source_folder() -> Path:
     for name in ("runtime", "compiler"):
         (src / "myriad" / name).symlink_to(ROOT / name, target_is_directory=True)
     return src
+
+
+_MATH = re.compile(r"^(\s*)\.\. math::\s*(.*)$")
+_ROLE = re.compile(r":(?:class|func|meth|mod|attr|data|obj|exc):`(~?)\.*([^`]+)`")
+
+
+def _indent(line: str) -> int:
+    return len(line) - len(line.lstrip())
+
+
+class _RestMath(Preprocessor):
+    """``.. math::`` and its indented body (or the rest of its line) -> a ``\\[ ... \\]`` block; a role -> code."""
+
+    def run(self, lines):
+        out, i = [], 0
+        while i < len(lines):
+            math = _MATH.match(lines[i])
+            if not math:
+                out.append(_ROLE.sub(lambda m: f"`{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}`",
+                                     lines[i]))
+                i += 1
+                continue
+            indent, body = math.group(1), [math.group(2)] if math.group(2) else []
+            i += 1
+            while i < len(lines) and (not lines[i].strip() or _indent(lines[i]) > len(indent)):
+                body.append(lines[i].strip())
+                i += 1
+            out += ["", indent + "\\[", *(indent + b for b in body if b), indent + "\\]", ""]
+        return out
+
+
+class _RestMathExtension(Extension):
+    def extendMarkdown(self, md):  # noqa: N802 (Markdown's name)
+        md.preprocessors.register(_RestMath(md), "myriad-rest-math", 35)  # before arithmatex and code blocks
+
+
+def on_config(config):
+    # After mkdocstrings' on_config, which handed this same list to its handlers: their Markdown is built later.
+    config.markdown_extensions.append(_RestMathExtension())
+    return config
 
 
 def on_startup(command, dirty):
