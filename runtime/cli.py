@@ -158,8 +158,9 @@ def _cmd_solve(args) -> int:
     print(f"  status {sol.status} (solver code {sol.solver_code}){grid}")
     print(f"  cost {sol.cost:.8g}   defect {[f'{d:.2e}' for d in sol.defect] or 'none required'}   "
           f"constraint violation {sol.constraint_violation:.2e}")
-    print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
-          f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
+    if config.resimulate:
+        print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
+              f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
     if system.free_horizon:
         lo, hi = system.horizon_bounds
         print(f"  final time T = {sol.final_time:.10g} (free in [{lo:g}, {hi:g}], guess {system.horizon_guess:g})")

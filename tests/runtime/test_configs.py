@@ -100,6 +100,13 @@ def test_solve_flags_keep_their_spellings():
     assert _parse("solve", ["--controls", "30", "--transcription", "fbsm"]) == SolveConfig("fbsm", intervals=30)
 
 
+def test_every_field_of_the_sweep_config_has_its_argument():
+    from myriad.runtime.sweep import SweepConfig
+
+    dests = {a.dest for a in _parser()._subparsers._group_actions[0].choices["sweep"]._actions}
+    assert {f.name for f in dataclasses.fields(SweepConfig)} <= dests
+
+
 @pytest.mark.parametrize("item, flag", [
     ("intervals=0", "--intervals"),
     ("x0_std=abc", "--x0-std"),
