@@ -11,7 +11,7 @@ import pytest
 
 import myriad.runtime
 from myriad.runtime.cli import _parser, main
-from myriad.runtime.configs import FieldError, build, field_docs, from_args, parse_value, to_json, usage_message
+from myriad.runtime.configs import FieldError, build, field_docs, from_args, to_json, usage_message
 from myriad.runtime.solve_config import METHODS, SolveConfig
 from myriad.runtime.sweep import parse_method
 
@@ -28,13 +28,20 @@ def no_work(monkeypatch):
     monkeypatch.setattr(myriad.runtime, "load", reached)
 
 
-# Per command: its config, the words before the options, and a non-default value (as shell words) for EVERY field:
-# a field added without one here fails test_every_field_has_a_sample, so none can be left out of the shell.
+# Per command: its config, the words before the options, the command's own reading of its arguments, and for EVERY
+# field a non-default VALUE for `--set FIELD=VALUE`, or (VALUE, words its flag takes, words the field needs beside
+# it). A field added without a sample fails test_every_field_has_a_sample, so none can be left out of the shell.
+def _solve_config(args):
+    from myriad.runtime.cli import _solve_config
+
+    return _solve_config(args)
+
+
 COMMANDS = {
-    "solve": (SolveConfig, ["solve", "van_der_pol"], {
+    "solve": (SolveConfig, ["solve", "van_der_pol"], _solve_config, {
         "transcription": "multiple_shooting", "solver": "ipopt", "integrator": "rk4", "intervals": "20",
-        "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": "3", "max_intervals": "500",
-        "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
+        "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": ("3", None, ["--tolerance", "1"]),
+        "max_intervals": ("500", None, ["--tolerance", "1"]), "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
 }
 
 
@@ -47,19 +54,26 @@ def _flags(command) -> dict[str, list[str]]:
 
 
 def _parse(command, words):
-    cls, head, _ = COMMANDS[command]
-    return from_args(cls, _parser(command).parse_args([*head, *words]))
+    _, head, read, _ = COMMANDS[command]
+    return read(_parser(command).parse_args([*head, *words]))
 
 
-def _flag_words(flag, text):
-    if text in ("true", "false"):  # a boolean field: --x / --no-x
-        return [flag if text == "true" else "--no-" + flag[2:]]
-    return [flag, *text.split()] if not text.startswith(("{", "[")) else [flag, text]
+def _sample(command, name):
+    """(VALUE, the words of its flag, the words it needs beside it)."""
+    sample = COMMANDS[command][3][name]
+    text, words, context = (sample, None, []) if isinstance(sample, str) else sample
+    if words is None:
+        flag = _flags(command)[name][0]
+        if text in ("true", "false"):  # a boolean field: --x / --no-x
+            words = [flag if text == "true" else "--no-" + flag[2:]]
+        else:
+            words = [flag, *(text.split() if not text.startswith(("{", "[")) else [text])]
+    return text, words, context
 
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_every_field_has_a_sample_and_a_help_text(command):
-    cls, _, samples = COMMANDS[command]
+    cls, _, _, samples = COMMANDS[command]
     names = [f.name for f in dataclasses.fields(cls)]
     assert sorted(samples) == sorted(names)
     docs = field_docs(cls)
@@ -68,28 +82,18 @@ def test_every_field_has_a_sample_and_a_help_text(command):
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_every_field_is_settable_by_its_flag_and_by_set(command):
-    cls, _, samples = COMMANDS[command]
-    flags = _flags(command)
-    by_flags, by_set = [], []
-    for name, text in samples.items():
-        if name in flags:
-            by_flags += _flag_words(flags[name][0], text)
-        else:
-            by_flags += ["--set", f"{name}={text}"]
-        by_set += ["--set", f"{name}={text}"]
-    default = cls()
-    for words in (by_flags, by_set):
-        config = _parse(command, words)
-        for name, text in samples.items():
-            value = getattr(config, name)
-            assert value != getattr(default, name), name
-            assert to_json(config)[name] == parse_value(text) or str(value) == text, name
+    cls = COMMANDS[command][0]
+    for f in dataclasses.fields(cls):
+        text, words, context = _sample(command, f.name)
+        before = getattr(_parse(command, context), f.name)
+        by_flag = getattr(_parse(command, [*context, *words]), f.name)
+        by_set = getattr(_parse(command, [*context, "--set", f"{f.name}={text}"]), f.name)
+        assert by_flag == by_set != before, f.name
 
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_no_flag_means_the_configs_own_defaults(command):
-    cls, _, _ = COMMANDS[command]
-    assert _parse(command, []) == cls()
+    assert _parse(command, []) == COMMANDS[command][0]()
 
 
 def test_solve_flags_keep_their_spellings():
