@@ -268,12 +268,18 @@ def defaults(cls: type) -> dict[str, Any]:
 
 
 def usage_message(exc: Exception, cls: type, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:
-    """A ``cls`` config's ``ValueError`` in a command's words: the fields it names (a :class:`FieldError`'s, or the
-    field that starts the message) as their flags, e.g. ``intervals must be ...`` -> ``--intervals must be ...``."""
-    message = str(exc)
-    names = {f.name for f in dataclasses.fields(cls)}
-    first = re.match(r"[a-z][a-z0-9_]*(?= )", message)
-    fields = getattr(exc, "fields", ()) or ((first[0],) if first and first[0] in names else ())
+    """A ``cls`` config's ``ValueError`` in a command's words: the fields it names (a :class:`FieldError`'s, else the
+    field that starts it, after a ``Cls: `` or ``Cls(field=value): `` prefix) as their flags, e.g.
+    ``intervals must be ...`` -> ``--intervals must be ...``."""
+    message, names = str(exc), {f.name for f in dataclasses.fields(cls)}
+    fields = getattr(exc, "fields", ())
+    if not fields:
+        call = re.match(rf"{cls.__name__}\((\w+)=(.*?)\): (.*)", message, re.S)
+        if call and call[1] in names:
+            message = f"{call[1]} {call[2]}: {call[3]}"
+        message = re.sub(rf"^{cls.__name__}: ", "", message)
+        first = re.match(r"[a-z][a-z0-9_]*(?= )", message)
+        fields = (first[0],) if first and first[0] in names else ()
     for name in fields:
         message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w-])", lambda _: flag(name, spelled), message)
     return message

@@ -216,5 +216,8 @@ def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
     with pytest.raises(ValueError) as info:
         build(Outer, {"inner.rate": -1})
     assert usage_message(info.value, Outer) == "--set inner.rate must be > 0, got -1"
+    assert usage_message(ValueError("Outer(shade='x'): expected dark or light"), Outer) == \
+        "--shade 'x': expected dark or light"
+    assert usage_message(ValueError("Outer: widths must be >= 1"), Outer) == "--widths must be >= 1"
     with pytest.raises(ValueError, match="unknown field 'colr'"):
         build(Outer, {"colr": "red"})
