@@ -42,8 +42,8 @@ from bench.isolate import isolated, write_json
 from myriad.runtime import load
 from myriad.runtime.data import ProblemData, default_data
 from myriad.runtime.e2e import E2EConfig, UnrolledPlanner, make_implicit_solve, run_e2e
+from myriad.runtime.learn.models import Parametric
 from myriad.runtime.solvers.interior_point import InteriorPoint
-from myriad.runtime.sysid.models import Parametric
 from myriad.runtime.sysid.run import SysidConfig
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe

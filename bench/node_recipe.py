@@ -21,12 +21,12 @@ if not __package__:  # run as a file (`python bench/NAME.py`): run as the module
 import numpy as np
 import optax
 
+from myriad.runtime.learn.dataset import make_dataset
+from myriad.runtime.learn.evaluate import evaluate
+from myriad.runtime.learn.models import NeuralODE
 from myriad.runtime.loader import load
 from myriad.runtime.solve import solve
-from myriad.runtime.sysid.dataset import make_dataset
-from myriad.runtime.sysid.evaluate import evaluate
 from myriad.runtime.sysid.fit import FitConfig, fit
-from myriad.runtime.sysid.models import NeuralODE
 from myriad.runtime.sysid.run import SysidConfig, _merge, run_sysid
 
 
@@ -83,7 +83,7 @@ def run_rounds(system, cfg: SysidConfig, refine: FitConfig):
         t0 = time.perf_counter()
         fr = fit(model, dataset, cfg.fit if r == 0 else refine, theta0=theta, progress=False)
         seconds += time.perf_counter() - t0
-        theta, stopped = fr.theta, fr.stopped
+        theta, stopped = fr.theta, str(fr.stopped)
         history += [(e + (r and history[-1][0]), tl, vl) for e, tl, vl in fr.history]
         ev = evaluate(model, theta, optimum=optimum)
         gaps.append((round(float(ev.relative_gap), 4), round(float(ev.max_achieved_defect), 3)))
@@ -128,7 +128,7 @@ def main(argv=None):
         rf["optimizer"] = opt(lr, rf.pop("warmup", 1), rf.get("epochs", 1000), end=rf.pop("end", 1e-5))
     xs, xf = json.loads(a.sys), json.loads(a.fit)
     if "sampling" in xs:
-        from myriad.runtime.sysid.dataset import Sampling
+        from myriad.runtime.learn.dataset import Sampling
         xs["sampling"] = Sampling(**xs["sampling"])
     if "hidden" in xs:
         xs["hidden"] = tuple(xs["hidden"])

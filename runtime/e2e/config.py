@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
+from ..learn.identity import describe
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
-from ..sysid.checkpoint import describe
 
 __all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
 

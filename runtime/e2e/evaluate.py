@@ -8,14 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from ..data import default_data
 from ..integrators import Heun
-from ..simulate import simulate
+from ..learn.dataset import Sampling
+from ..learn.evaluate import apply_plan
+from ..learn.reaim import reaim as re_aim
 from ..solution import Solution, json_number
 from ..solve import solve
 from ..solvers import Ipopt
-from ..sysid.dataset import Sampling
-from ..sysid.reaim import reaim as re_aim
 
 __all__ = ["E2EEvaluation", "evaluate_learned"]
 
@@ -55,7 +54,7 @@ def evaluate_learned(model: Any, theta: Any, spec_params: dict, expert: Solution
     ``plan_imitation_loss`` is the published imitation loss of the converged plan, mean over nodes of
     ||u - u*||^2, when the plan is on the expert's grid (NaN otherwise). ``reaim`` > 0: the converged plan is
     re-aimed at the required final values from that many observed runs of the true system at most
-    (:mod:`~myriad.runtime.sysid.reaim`; noise-free, on the plan's grid), and the kept plan is judged."""
+    (:mod:`~myriad.runtime.learn.reaim`; noise-free, on the plan's grid), and the kept plan is judged."""
     true = model.system
     learned = model.as_system(theta)
     params = {"spec": spec_params, "model": theta}
@@ -67,12 +66,10 @@ def evaluate_learned(model: Any, theta: Any, spec_params: dict, expert: Solution
         aimed = re_aim(model, theta, plan, sampling, iterations=reaim, seed=0, transcription=transcription,
                        solver=solver or Ipopt(), params=params)
         plan = aimed.plan
-    data = default_data(true)
-    sim = simulate(true, plan.controls, data.params, data.x0, integrator=integrator)
-    defect = [float(d) for d in np.asarray(sim.defect)[true.final_mask]]
+    achieved_cost, defect = apply_plan(true, plan.controls, transcription)
     same_grid = plan.controls.shape == expert.controls.shape
     loss = float(np.mean(np.sum((plan.controls - expert.controls) ** 2, axis=-1))) if same_grid else float("nan")
     message = ("planned on the learned model and applied to the true system" if plan.converged else
                f"planning on the learned model failed ({plan.status}): {plan.message}")
-    return E2EEvaluation(plan=plan, expert=expert, achieved_cost=float(sim.cost), achieved_defect=defect,
+    return E2EEvaluation(plan=plan, expert=expert, achieved_cost=achieved_cost, achieved_defect=defect,
                          plan_imitation_loss=loss, converged=bool(plan.converged), message=message, reaim=aimed)

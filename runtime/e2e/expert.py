@@ -1,5 +1,5 @@
 """The expert Algorithm 2 imitates when it is not the true optimum: one recorded trajectory of a
-system-identification dataset (:mod:`myriad.runtime.sysid.dataset`).
+system-identification dataset (:mod:`myriad.runtime.learn.dataset`).
 
     expert = expert_from_dataset("data/cancer.npz", "cancer_treatment", split="train", index=0)
     run_e2e("cancer_treatment", E2EConfig(model="node", init="sysid"), expert=expert)
@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from ..data import default_data
+from ..learn.dataset import Dataset, load_dataset
 from ..loader import load
 from ..simulate import simulate
 from ..solution import Solution
 from ..status import Status
-from ..sysid.dataset import Dataset, load_dataset
 from ..system import System
 from ..transcriptions import SingleShooting
 

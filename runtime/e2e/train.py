@@ -28,12 +28,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..learn.checkpoint import load_checkpoint, save_checkpoint
+from ..learn.models import NeuralODE, Parametric
 from ..loader import load
 from ..solution import Solution, json_number
 from ..solve import solve
 from ..solvers import Ipopt
-from ..sysid.checkpoint import load_checkpoint, save_checkpoint
-from ..sysid.models import NeuralODE, Parametric
 from ..sysid.run import failed, run_sysid
 from ..system import System
 from ..transcriptions import SingleShooting

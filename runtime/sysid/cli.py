@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from .._command_args import add_training_outputs, first_error, usage
+from ..learn.models import MODELS
 
 __all__ = ["add_parser", "run"]
 
@@ -19,7 +20,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub) -> None:
     s = sub.add_parser("sysid", help="system identification: fit a model to trajectories, plan on it")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--model", choices=["parametric", "node"], default="parametric",
+    s.add_argument("--model", choices=list(MODELS), default="parametric",
                    help="the spec's learnable parameters, or a Neural ODE (default: parametric)")
     s.add_argument("--method", choices=["least_squares", "adam"], default=None,
                    help="least_squares (parametric default) or adam on the trajectory loss (Neural ODE default)")
@@ -56,12 +57,13 @@ def run(args) -> int:
         return _usage(error)
     if args.epochs is not None and args.epochs < 1:
         return _usage("--epochs must be at least 1")
-    if args.polish is not None and (args.polish < 0 or args.model != "node"):
+    model = MODELS[args.model]
+    if args.polish is not None and (args.polish < 0 or not model.default_polish):
         return _usage("--polish N (N >= 0) goes with --model node")
     try:
         fit = None
-        if args.epochs is not None:
-            fit = node_fit_config(args.epochs) if args.model == "node" else FitConfig(epochs=args.epochs)
+        if args.epochs is not None:  # the model's own recipe (SysidConfig's default), for this many epochs
+            fit = node_fit_config(args.epochs) if model.default_method == "adam" else FitConfig(epochs=args.epochs)
         polish = "default" if args.polish is None else (PolishConfig(iterations=args.polish) if args.polish else None)
         config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
                              rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden),
@@ -106,7 +108,8 @@ def _plots(report, folder: Path) -> None:
     import numpy as np
 
     from ..integrators import Heun, rollout
-    from .plots import plot_loss, plot_trajectories, plot_vector_field
+    from ..learn.plots import plot_loss
+    from .plots import plot_trajectories, plot_vector_field
 
     folder.mkdir(parents=True, exist_ok=True)
     true, label = report.model.system, f"{report.system} ({report.config.model})"

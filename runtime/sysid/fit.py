@@ -9,14 +9,15 @@ traces). A step differentiates the loss of :mod:`.losses` with respect to the *t
 
 Every ``validate_every`` epochs the validation loss is computed: always the full-horizon, single-shooting loss
 (gamma = 1, same scale), whatever the training layout, so it compares across curriculum stages and methods. The best
-parameters on validation are kept and returned (those of epoch 0, the start, if nothing improved on them). Stops:
-``"converged"`` (validation loss <= ``tol``), ``"early_stopping"`` (``patience`` validations in a row without
-improvement, counted in the last curriculum stage only), ``"max_epochs"``, ``"non_finite"`` (a training loss or
-gradient or a validation loss that is NaN/inf: the fit stops at once, keeps the best parameters, and reports the
-reason; it never reports success for it).
+parameters on validation are kept and returned (those of epoch 0, the start, if nothing improved on them). Stops
+(:class:`~myriad.runtime.learn.loop.Stop`): ``CONVERGED`` (validation loss <= ``tol``), ``EARLY_STOPPING``
+(``patience`` validations in a row without improvement, counted in the last curriculum stage only), ``MAX_EPOCHS``,
+``NON_FINITE`` (a training loss or gradient or a validation loss that is NaN/inf: the fit stops at once, keeps the
+best parameters, and reports the reason; it never reports success for it).
 
-Checkpoints (:mod:`.checkpoint`) are written every ``checkpoint_every`` epochs and when the fit stops (never a
-non-finite state). ``resume=True`` continues from the last one, checking that it belongs to the same dataset and
+The epochs run in the learning kit's loop (:func:`~myriad.runtime.learn.loop.train`); checkpoints
+(:mod:`~myriad.runtime.learn.checkpoint`) are written every ``checkpoint_every`` epochs and when the fit stops (never
+a non-finite state). ``resume=True`` continues from the last one, checking that it belongs to the same dataset and
 configuration (``epochs``, ``patience``, ``tol`` and ``checkpoint_every`` may change): with the same seed the result
 is the uninterrupted run's, bit for bit on CPU (a shorter run's closing validation, off the ``validate_every``
 schedule, comes after its last checkpoint, so a resume never replays it).
@@ -27,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -37,15 +37,16 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from .checkpoint import config_identity, dataset_id, load_checkpoint, save_checkpoint
+from ..learn.checkpoint import load_checkpoint, save_checkpoint
+from ..learn.dataset import dataset_id
+from ..learn.identity import describe, digest, optimizer_identity
+from ..learn.loop import Step, Stop, check_run, checkpoint_path, train
+from ..learn.models import AbstractModel
 from .losses import SCALES, TRACES, fit_integrator, state_scale, train_epoch, validation_loss
-from .models.base import AbstractModel
 
-__all__ = ["FitConfig", "FitResult", "fit", "METHODS", "STOPS"]
+__all__ = ["FitConfig", "FitResult", "fit", "METHODS"]
 
 METHODS = ("single_shooting", "multiple_shooting")
-STOPS = ("converged", "early_stopping", "max_epochs", "non_finite")
-CHECKPOINT = "checkpoint.npz"
 
 
 def _int(v: Any) -> bool:
@@ -170,7 +171,8 @@ class FitResult:
         best_validation_loss, best_epoch: the best validation loss and its epoch (0: the starting parameters).
         epochs: the epochs completed (a resumed fit counts the earlier ones).
         seconds: wall time of this call, compilation included.
-        stopped: one of ``STOPS``; ``message`` says more.
+        stopped: a :class:`~myriad.runtime.learn.loop.Stop` (``MAX_EPOCHS``, ``CONVERGED``, ``EARLY_STOPPING`` or
+            ``NON_FINITE``); ``message`` says more.
         compile_count: traces of the compiled epoch and validation functions in this call: at most one per
             curriculum stage plus one, and 0 when an earlier fit of the same configuration and shapes compiled them.
         integrator: the label of the integrator the model was rolled out with.
@@ -181,7 +183,7 @@ class FitResult:
     best_validation_loss: float
     epochs: int
     seconds: float
-    stopped: str
+    stopped: Stop
     best_epoch: int = 0
     compile_count: int = 0
     integrator: str = ""
@@ -189,7 +191,7 @@ class FitResult:
 
     @property
     def success(self) -> bool:
-        return self.stopped != "non_finite"
+        return self.stopped.success
 
 
 def _check(model, dataset, config, theta0, checkpoint_dir, resume, progress) -> tuple[int, list]:
@@ -216,25 +218,132 @@ def _check(model, dataset, config, theta0, checkpoint_dir, resume, progress) -> 
     stages = config.stages(n_steps)
     if theta0 is not None:
         model.check_params(theta0)
-    if (resume and checkpoint_dir is None) or progress not in (None, True, False):
-        raise ValueError(f"fit: resume=True needs a checkpoint_dir, and progress must be None (auto), True or False; "
-                         f"got resume={resume!r}, checkpoint_dir={checkpoint_dir!r}, progress={progress!r}")
+    check_run("fit", resume=resume, checkpoint_dir=checkpoint_dir, progress=progress)
     return n_steps, stages
 
 
-class _NoBar:  # the progress bar when there is none
-    update = set_postfix_str = close = staticmethod(lambda *args: None)
-
-
-def _bar(progress, total, initial, desc):
-    if not (sys.stderr.isatty() if progress is None else progress):
-        return _NoBar()
-    from tqdm import tqdm  # imported lazily: only the progress bar needs it
-    return tqdm(total=total, initial=initial, desc=desc, unit="epoch", file=sys.stderr, dynamic_ncols=True)
+def config_identity(model: Any, config: FitConfig, integrator: Any, stages: list, theta: Any) -> tuple[str, dict]:
+    """``(sha256, description)`` of what fixes a fit's sequence of iterates: the model's class and fields, the
+    optimiser, batch size, validation period, method, curriculum stages (all but the last one's end), gamma, scale,
+    seed, integrator and the trainable leaves' key paths; not ``epochs``, ``patience``, ``tol`` or
+    ``checkpoint_every``, which a resumed fit may change. A custom optax transformation is known only by its
+    ``init`` function's qualified name (and its state's leaves, checked on load): resume with the same one."""
+    desc = {
+        "model": type(model).__name__, "system": model.system.name,
+        "model_fields": {f.name: describe(getattr(model, f.name)) for f in dataclasses.fields(model)
+                         if f.name != "system"},
+        "optimizer": optimizer_identity(config.optimizer),
+        "batch_size": config.batch_size, "validate_every": config.validate_every, "method": config.method,
+        "stages": [list(s) for s in stages[:-1]] + [list(stages[-1][:2])], "gamma": config.gamma,
+        "scale": config.scale, "seed": config.seed, "integrator": repr(integrator),
+        "theta": [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(theta)[0]],
+    }
+    return digest(desc), desc
 
 
 # One object per learning rate: the optimiser is a static argument of the compiled epoch, so equal configs reuse it.
 _adam = functools.lru_cache(maxsize=32)(optax.adam)
+
+
+class _FitRun:
+    """One fit's data, state and epoch: the learner that :func:`~myriad.runtime.learn.loop.train` drives."""
+
+    unit = "epoch"
+
+    def __init__(self, model: AbstractModel, dataset: Any, config: FitConfig, theta0: Any, n_steps: int,
+                 stages: list):
+        self.model, self.config, self.n_steps, self.stages = model, config, n_steps, stages
+        self.end = stages[-1][2]
+        self.stage_of = np.searchsorted([s[2] for s in stages], np.arange(self.end + 1))  # epoch e's stage
+        self.last = int(self.stage_of[self.end])  # the stage that runs to the end (a later one may have no epochs)
+        self.integrator = fit_integrator(dataset.sampling)
+        self.desc = f"fit {model.system.name}"
+        times = np.asarray(dataset.times, dtype=np.float64)
+        self.common = (model.system.default_params(jnp.float64),  # spec, 1 / scale, t0, h: the loss's data
+                       jnp.asarray(1.0 / state_scale(model.system, dataset.train.states, config.scale)),
+                       jnp.asarray(times[0]), jnp.asarray((times[-1] - times[0]) / n_steps))
+        val = dataset.validation if dataset.validation.states.shape[0] > 0 else dataset.train
+        self.x_tr, self.u_tr, self.x_va, self.u_va = (jnp.asarray(a, dtype=jnp.float64) for a in (
+            dataset.train.states, dataset.train.controls, val.states, val.controls))
+        self.opt = _adam(config.optimizer) if isinstance(config.optimizer, float) else config.optimizer
+        self.bs = self.x_tr.shape[0] if config.batch_size is None else min(config.batch_size, self.x_tr.shape[0])
+        self.key, init_key = jax.random.split(jax.random.PRNGKey(config.seed))
+        theta = model.init_params(init_key, dataset.train) if theta0 is None else theta0
+        # Strongly typed float64 leaves: a weakly typed start would be retraced once the optimiser retypes it.
+        self.train, self.frozen = model.partition(jax.tree.map(lambda a: jnp.asarray(np.asarray(a, np.float64)),
+                                                               theta))
+        with jax.numpy_dtype_promotion("standard"):  # optax's own arithmetic (see losses.train_epoch)
+            self.opt_state = self.opt.init(self.train)
+        self.epoch, self.history, self.stalls, self.loss = 0, [], 0, math.nan
+        self.best_train, self.best_val, self.best_epoch, self.validated = self.train, math.inf, 0, 0
+        self.ckpt, self.ids = None, None
+
+    def validate(self, train: Any) -> float:
+        return float(validation_loss(train, self.frozen, *self.common, self.x_va, self.u_va, model=self.model,
+                                     integrator=self.integrator, n_steps=self.n_steps))
+
+    def start(self, dataset: Any, checkpoint_dir: Any, resume: bool) -> tuple[Stop | None, str]:
+        """Restore the checkpoint (``resume``) or validate the start; a stop already reached, if any."""
+        config_id, ident = config_identity(self.model, self.config, self.integrator, self.stages, self.train)
+        self.ckpt = checkpoint_path(checkpoint_dir)
+        self.ids = ("" if self.ckpt is None else dataset_id(dataset), config_id, ident)
+        if resume and self.ckpt.is_file():
+            c = load_checkpoint(self.ckpt, {"theta": self.train, "opt_state": self.opt_state},
+                                dataset_id=self.ids[0], config_id=config_id, config=ident)
+            self.train, self.opt_state, self.key, self.epoch, self.best_train, self.best_val, self.history = c[:7]
+            self.stalls, self.best_epoch = int(c.extra["stalls"]), int(c.extra["best_epoch"])
+            self.validated = self.history[-1][0] if self.history else 0
+        else:
+            v0 = self.validate(self.train)
+            self.best_val = v0 if math.isfinite(v0) else math.inf
+        if self.best_val <= self.config.tol:
+            return Stop.CONVERGED, f"validation loss {self.best_val:.3e} <= tol {self.config.tol:g}"
+        if (self.config.patience and 0 < self.epoch <= self.end and self.stage_of[self.epoch] == self.last
+                and self.stalls >= self.config.patience):
+            return Stop.EARLY_STOPPING, f"{self.stalls} validations without improvement (as checkpointed)"
+        return None, ""
+
+    def step(self, index: int) -> Step:
+        """Epoch ``index + 1``: train, then validate on schedule (best parameters, patience, tolerance)."""
+        e, st, cfg = index + 1, int(self.stage_of[index + 1]), self.config
+        new = train_epoch(self.train, self.frozen, self.opt_state, self.key, *self.common, self.x_tr, self.u_tr,
+                          model=self.model, integrator=self.integrator, optimizer=self.opt,
+                          shape=(self.n_steps, *self.stages[st][:2], cfg.gamma), batch_size=self.bs)
+        loss = float(new[3])
+        if not (bool(new[4]) and math.isfinite(loss)):
+            return Step(Stop.NON_FINITE, f"the training loss or its gradient is not finite at epoch {e}")
+        self.train, self.opt_state, self.key, self.epoch, self.loss = new[0], new[1], new[2], e, loss
+        if e % cfg.validate_every:
+            return Step()
+        v, self.validated = self.validate(self.train), e
+        self.history.append((e, loss, v))
+        postfix = f"train {loss:.3e} val {v:.3e} best {min(v, self.best_val):.3e}"
+        if not math.isfinite(v):
+            return Step(Stop.NON_FINITE, f"the validation loss is not finite at epoch {e}", postfix)
+        if v < self.best_val:
+            self.best_train, self.best_val, self.best_epoch, self.stalls = self.train, v, e, 0
+        elif st == self.last:  # earlier curriculum stages do not count towards patience
+            self.stalls += 1
+        if self.best_val <= cfg.tol:
+            return Step(Stop.CONVERGED, f"validation loss {self.best_val:.3e} <= tol {cfg.tol:g}", postfix)
+        if st == self.last and cfg.patience and self.stalls >= cfg.patience:
+            return Step(Stop.EARLY_STOPPING, f"{self.stalls} validations without improvement", postfix)
+        return Step(postfix=postfix)
+
+    def save(self, done: int) -> None:
+        save_checkpoint(self.ckpt, theta=self.train, opt_state=self.opt_state, key=self.key, epoch=done,
+                        best_theta=self.best_train, best_val=self.best_val, history=self.history,
+                        dataset_id=self.ids[0], config_id=self.ids[1], config=self.ids[2],
+                        extra={"stalls": self.stalls, "best_epoch": self.best_epoch})
+
+    def close(self) -> None:
+        """A fit that ran all its epochs ends on a validation, after the checkpoint: a resume replays only the
+        schedule."""
+        if self.validated < self.epoch:
+            v = self.validate(self.train)
+            self.history.append((self.epoch, self.loss, v))
+            if math.isfinite(v) and v < self.best_val:
+                self.best_train, self.best_val, self.best_epoch = self.train, v, self.epoch
 
 
 def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, theta0: Any = None,
@@ -242,10 +351,10 @@ def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, 
     """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (see the module docstring).
 
     Args:
-        model: a :class:`~.models.base.AbstractModel` of the dataset's system.
-        dataset: a :class:`~.dataset.Dataset`; the model is rolled out with its sampling's integrator on its grid
-            (RK4 on the same grid when the data came from the adaptive integrator: :func:`.losses.fit_integrator`).
-            Without validation trajectories the training set is used for selection.
+        model: a :class:`~myriad.runtime.learn.models.AbstractModel` of the dataset's system.
+        dataset: a :class:`~myriad.runtime.learn.dataset.Dataset`; the model is rolled out with its sampling's
+            integrator on its grid (RK4 on the same grid when the data came from the adaptive integrator:
+            :func:`.losses.fit_integrator`). Without validation trajectories the training set is used for selection.
         config: a :class:`FitConfig`.
         theta0: starting parameters (default ``model.init_params(key, dataset.train)``, key from ``config.seed``).
         checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; None: none.
@@ -258,93 +367,19 @@ def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, 
     """
     start, traces = time.perf_counter(), sum(TRACES.values())
     n_steps, stages = _check(model, dataset, config, theta0, checkpoint_dir, resume, progress)
-    end = stages[-1][2]
-    stage_of = np.searchsorted([s[2] for s in stages], np.arange(end + 1))  # epoch e trains in stage_of[e]
-    last = int(stage_of[end])  # the stage that runs to the end (a later one may have no epochs left)
-    integrator = fit_integrator(dataset.sampling)
-    times = np.asarray(dataset.times, dtype=np.float64)
-    common = (model.system.default_params(jnp.float64),  # spec, 1 / scale, t0, h: the loss's data
-              jnp.asarray(1.0 / state_scale(model.system, dataset.train.states, config.scale)),
-              jnp.asarray(times[0]), jnp.asarray((times[-1] - times[0]) / n_steps))
-    val = dataset.validation if dataset.validation.states.shape[0] > 0 else dataset.train
-    x_tr, u_tr, x_va, u_va = (jnp.asarray(a, dtype=jnp.float64) for a in (
-        dataset.train.states, dataset.train.controls, val.states, val.controls))
-    opt = _adam(config.optimizer) if isinstance(config.optimizer, float) else config.optimizer
-    bs = x_tr.shape[0] if config.batch_size is None else min(config.batch_size, x_tr.shape[0])
-
-    key, init_key = jax.random.split(jax.random.PRNGKey(config.seed))
-    theta = model.init_params(init_key, dataset.train) if theta0 is None else theta0
-    # Strongly typed float64 leaves: a weakly typed start would be retraced once the optimiser retypes it.
-    train, frozen = model.partition(jax.tree.map(lambda a: jnp.asarray(np.asarray(a, dtype=np.float64)), theta))
-    with jax.numpy_dtype_promotion("standard"):  # optax's own arithmetic (see losses.train_epoch)
-        opt_state = opt.init(train)
-
-    def validate(tr):
-        return float(validation_loss(tr, frozen, *common, x_va, u_va, model=model, integrator=integrator,
-                                     n_steps=n_steps))
-
-    config_id, ident = config_identity(model, config, integrator, stages, train)
-    ckpt = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
-    data_id = "" if ckpt is None else dataset_id(dataset)
-    epoch, history, stalls, stopped, message, loss = 0, [], 0, None, "", math.nan
-    if resume and ckpt.is_file():
-        c = load_checkpoint(ckpt, {"theta": train, "opt_state": opt_state}, dataset_id=data_id,
-                            config_id=config_id, config=ident)
-        train, opt_state, key, epoch, best_train, best_val, history = c[:7]
-        stalls, best_epoch = int(c.extra["stalls"]), int(c.extra["best_epoch"])
-        validated = history[-1][0] if history else 0
-    else:
-        v0 = validate(train)
-        best_train, best_val, best_epoch, validated = train, (v0 if math.isfinite(v0) else math.inf), 0, 0
-    if best_val <= config.tol:
-        stopped, message = "converged", f"validation loss {best_val:.3e} <= tol {config.tol:g}"
-    elif config.patience and 0 < epoch <= end and stage_of[epoch] == last and stalls >= config.patience:
-        stopped, message = "early_stopping", f"{stalls} validations without improvement (as checkpointed)"
-
-    every = config.checkpoint_every or config.validate_every
-    bar = _NoBar() if stopped else _bar(progress, end, epoch, f"fit {model.system.name}")
-    try:
-        while stopped is None and epoch < end:
-            e, st = epoch + 1, int(stage_of[epoch + 1])
-            new = train_epoch(train, frozen, opt_state, key, *common, x_tr, u_tr, model=model, integrator=integrator,
-                              optimizer=opt, shape=(n_steps, *stages[st][:2], config.gamma), batch_size=bs)
-            loss = float(new[3])
-            if not (bool(new[4]) and math.isfinite(loss)):
-                stopped, message = "non_finite", f"the training loss or its gradient is not finite at epoch {e}"
-                break
-            train, opt_state, key, epoch = new[0], new[1], new[2], e
-            bar.update(1)
-            if e % config.validate_every == 0:
-                v, validated = validate(train), e
-                history.append((e, loss, v))
-                bar.set_postfix_str(f"train {loss:.3e} val {v:.3e} best {min(v, best_val):.3e}")
-                if not math.isfinite(v):
-                    stopped, message = "non_finite", f"the validation loss is not finite at epoch {e}"
-                    break
-                if v < best_val:
-                    best_train, best_val, best_epoch, stalls = train, v, e, 0
-                elif st == last:  # earlier curriculum stages do not count towards patience
-                    stalls += 1
-                if best_val <= config.tol:
-                    stopped, message = "converged", f"validation loss {best_val:.3e} <= tol {config.tol:g}"
-                elif st == last and config.patience and stalls >= config.patience:
-                    stopped, message = "early_stopping", f"{stalls} validations without improvement"
-            if ckpt is not None and (e % every == 0 or stopped or e == end):
-                save_checkpoint(ckpt, theta=train, opt_state=opt_state, key=key, epoch=e, best_theta=best_train,
-                                best_val=best_val, history=history, dataset_id=data_id, config_id=config_id,
-                                config=ident, extra={"stalls": stalls, "best_epoch": best_epoch})
-    finally:
-        bar.close()
+    run = _FitRun(model, dataset, config, theta0, n_steps, stages)
+    stopped, message = run.start(dataset, checkpoint_dir, resume)
     if stopped is None:
-        stopped, message = "max_epochs", f"{end} epochs"
-        if validated < epoch:  # close on a validation, after the checkpoint: a resume replays only the schedule
-            v = validate(train)
-            history.append((epoch, loss, v))
-            if math.isfinite(v) and v < best_val:
-                best_train, best_val, best_epoch = train, v, epoch
-    if stopped == "non_finite":
-        message += f"; returning the best parameters (epoch {best_epoch}, validation loss {best_val:.3e})"
-    note = "" if integrator == dataset.sampling.integrator else " (on the data's grid; the data: adaptive)"
-    return FitResult(theta=model.combine(best_train, frozen), history=history, best_validation_loss=best_val,
-                     epochs=epoch, seconds=time.perf_counter() - start, stopped=stopped, best_epoch=best_epoch,
-                     compile_count=sum(TRACES.values()) - traces, integrator=integrator.label + note, message=message)
+        every = None if run.ckpt is None else config.checkpoint_every or config.validate_every
+        stopped, message = train(run, start=run.epoch, end=run.end, every=every, progress=progress,
+                                 exhausted=Stop.MAX_EPOCHS)
+    if stopped is Stop.MAX_EPOCHS:
+        message = f"{run.end} epochs"
+        run.close()
+    if stopped is Stop.NON_FINITE:
+        message += f"; returning the best parameters (epoch {run.best_epoch}, validation loss {run.best_val:.3e})"
+    note = "" if run.integrator == dataset.sampling.integrator else " (on the data's grid; the data: adaptive)"
+    return FitResult(theta=model.combine(run.best_train, run.frozen), history=run.history,
+                     best_validation_loss=run.best_val, epochs=run.epoch, seconds=time.perf_counter() - start,
+                     stopped=stopped, best_epoch=run.best_epoch, compile_count=sum(TRACES.values()) - traces,
+                     integrator=run.integrator.label + note, message=message)

@@ -200,8 +200,8 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     """Fit a parametric model's parameters to a dataset by Levenberg-Marquardt (see the module docstring).
 
     Args:
-        model: a :class:`~myriad.runtime.sysid.models.Parametric` (``init_params``, ``vector_field``, ``system``).
-        dataset: a :class:`~myriad.runtime.sysid.dataset.Dataset` of the same system (name and spec hash checked).
+        model: a :class:`~myriad.runtime.learn.models.Parametric` (``init_params``, ``vector_field``, ``system``).
+        dataset: a :class:`~myriad.runtime.learn.dataset.Dataset` of the same system (name and spec hash checked).
         theta0: starting values {name: value}; names left out start at ``model.init_params``' guesses.
         method: "single_shooting" or "multiple_shooting".
         window: steps per multiple-shooting window (default N // 10, at least 1).

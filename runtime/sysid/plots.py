@@ -1,32 +1,20 @@
-"""What a person looks at after a fit: the loss curves, learned against true trajectories on held-out controls, and
-(for two-state systems) the learned against the true vector field. PNG files, labelled with the spec's names."""
+"""What a person looks at after a fit besides the loss curve (:mod:`~myriad.runtime.learn.plots`): learned against
+true trajectories on held-out controls, and (for two-state systems) the learned against the true vector field. PNG
+files, labelled with the spec's names."""
 
 from __future__ import annotations
 
 import math
 import os
-from typing import Any, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..plotting import finish_loss_figure, pyplot, save_png
+from ..plotting import pyplot, save_png
 
-__all__ = ["plot_loss", "plot_trajectories", "plot_vector_field"]
-
-
-def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
-    """Training and validation loss against the epoch (log scale)."""
-    plt = pyplot()
-    h = np.asarray(history, dtype=float).reshape(-1, 3)
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    ax.semilogy(h[:, 0], h[:, 1], label="training", color="C0")
-    if np.isfinite(h[:, 2]).any():
-        ax.semilogy(h[:, 0], h[:, 2], label="validation", color="C1")
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("trajectory loss (mean squared error)")
-    return finish_loss_figure(fig, ax, title, path)
+__all__ = ["plot_trajectories", "plot_vector_field"]
 
 
 def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: str | os.PathLike, title: str,

@@ -18,21 +18,23 @@ from typing import Any
 import jax
 import numpy as np
 
+from ..learn.dataset import Dataset, Sampling, Trajectories, make_dataset
+from ..learn.evaluate import Evaluation, evaluate
+from ..learn.loop import Stop
+from ..learn.models import Parametric, make_model, model_class
+from ..learn.reaim import Reaim, observe, reaim
 from ..loader import load
 from ..solve import solve
 from ..system import System
-from .dataset import Dataset, Sampling, Trajectories, make_dataset
-from .evaluate import Evaluation, evaluate
 from .fit import FitConfig, fit
 from .least_squares import least_squares
-from .models import NeuralODE, Parametric
 from .polish import PolishConfig, polish
-from .reaim import Reaim, observe, reaim
 
 __all__ = ["SysidConfig", "SysidReport", "node_fit_config", "run_sysid"]
 
-_MODELS = ("parametric", "node")
 _METHODS = ("least_squares", "adam")
+# The fit's stops that are a success; least squares reports a solver status, whose success is the same word.
+_FIT_OK = frozenset(str(s) for s in Stop if s.success)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +42,9 @@ class SysidConfig:
     """What to learn and how.
 
     Attributes:
-        model: "parametric" (the spec's learnable parameters) or "node" (a Neural ODE).
+        model: a name in :data:`~myriad.runtime.learn.models.MODELS`: "parametric" (the spec's learnable
+            parameters) or "node" (a Neural ODE). The fields left at None take the model's defaults (its
+            ``default_*`` class attributes).
         method: "least_squares" (Levenberg-Marquardt, parametric only; the default there) or "adam" (the published
             trajectory loss with optax; the only choice for Neural ODEs).
         trajectories: training trajectories per dataset (validation and test: ``max(3, trajectories // 3)`` each).
@@ -77,27 +81,26 @@ class SysidConfig:
     reaim: int | None = None
 
     def __post_init__(self):
-        if self.model not in _MODELS:
-            raise ValueError(f"SysidConfig(model={self.model!r}): expected one of {_MODELS}")
-        method = self.method or ("least_squares" if self.model == "parametric" else "adam")
+        cls = model_class(self.model, "SysidConfig")
+        method = self.method or cls.default_method
         if method not in _METHODS:
             raise ValueError(f"SysidConfig(method={self.method!r}): expected one of {_METHODS}")
-        if self.model == "node" and method == "least_squares":
+        if not cls.spec_form and method == "least_squares":  # it fits named parameters of the spec's dynamics
             raise ValueError("SysidConfig: least squares fits parametric models only; a Neural ODE trains with adam")
         object.__setattr__(self, "method", method)
         if self.rounds is None:  # datasets in sequence fix a Neural ODE's plan (docs/notes/node-training.md)
-            object.__setattr__(self, "rounds", 6 if self.model == "node" else 1)
-        if self.fit is None:
-            object.__setattr__(self, "fit", node_fit_config() if self.model == "node" else FitConfig())
+            object.__setattr__(self, "rounds", cls.default_rounds)
+        if self.fit is None:  # a model that trains by Adam by default (a network) gets the recipe measured for it
+            object.__setattr__(self, "fit", node_fit_config() if cls.default_method == "adam" else FitConfig())
         if self.refit is not None and not isinstance(self.refit, FitConfig):
             raise ValueError(f"SysidConfig: refit must be a FitConfig or None, got {self.refit!r}")
         if isinstance(self.polish, str) and self.polish == "default":
-            object.__setattr__(self, "polish", PolishConfig() if self.model == "node" else None)
+            object.__setattr__(self, "polish", PolishConfig() if cls.default_polish else None)
         if self.polish is not None and (not isinstance(self.polish, PolishConfig) or method != "adam"):
             raise ValueError(f"SysidConfig: polish must be a PolishConfig (with method='adam') or None, got "
                              f"{self.polish!r}")
         if self.reaim is None:
-            object.__setattr__(self, "reaim", 6 if self.model == "node" else 0)
+            object.__setattr__(self, "reaim", cls.default_reaim)
         if isinstance(self.reaim, bool) or not isinstance(self.reaim, int) or self.reaim < 0:
             raise ValueError(f"SysidConfig: reaim must be an integer >= 0, got {self.reaim!r}")
         if self.trajectories < 1 or self.rounds < 1:
@@ -132,7 +135,7 @@ class SysidReport:
 
     @property
     def converged(self) -> bool:
-        return self.fit_status in ("converged", "early_stopping", "max_epochs") and self.evaluation.converged
+        return self.fit_status in _FIT_OK and self.evaluation.converged
 
     def record(self) -> dict[str, Any]:
         ev = self.evaluation.record()
@@ -183,10 +186,8 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
     """Sample, fit, plan and judge (see the module docstring); ``transcription`` and ``solver`` set the planning
     setting (default: the published one)."""
     system = system if isinstance(system, System) else load(system)
-    if config.model == "parametric":
-        model = Parametric(system)  # refuses a system without learnable parameters, before any work
-    else:
-        model = NeuralODE(system, hidden=tuple(config.hidden), activation=config.activation)
+    # A parametric model refuses a system without learnable parameters, before any work.
+    model = make_model(config.model, system, hidden=tuple(config.hidden), activation=config.activation)
     sampling = dataclasses.replace(config.sampling, noise=config.noise)
     held = max(3, config.trajectories // 3)
     sizes = (config.trajectories, held, held)
@@ -228,9 +229,9 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             where = None if checkpoint_dir is None else Path(checkpoint_dir) / f"round{r}"
             settings = config.fit if r == 0 or config.refit is None else config.refit
             fr = fit(model, dataset, settings, theta0=theta, checkpoint_dir=where, resume=resume, progress=progress)
-            theta, status, message = fr.theta, fr.stopped, fr.message
+            theta, status, message = fr.theta, str(fr.stopped), fr.message
             history += [(e + (r and history[-1][0]), tl, vl) for e, tl, vl in fr.history]
-            if config.polish is not None and status in ("converged", "early_stopping", "max_epochs"):
+            if config.polish is not None and fr.success:
                 polished = polish(model, dataset, theta, config.polish, anchors=anchors)
                 theta = polished.theta
                 polishes.append(polished)
@@ -248,7 +249,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
             evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum,
                                   plan=aimed.plan)
     learned, true = {}, {}
-    if config.model == "parametric":
+    if isinstance(model, Parametric):
         learned = {k: float(v) for k, v in theta.items()}
         true = {k: float(v) for k, v in model.true_params().items()}
     return SysidReport(system=system.name, config=config, model=model, theta=theta, learned=learned, true=true,
@@ -259,7 +260,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
 
 def failed(report: SysidReport) -> str | None:
     """Why the experiment failed, or None."""
-    if report.fit_status not in ("converged", "early_stopping", "max_epochs"):
+    if report.fit_status not in _FIT_OK:
         return f"the fit stopped: {report.fit_status} ({report.fit_message})"
     if not report.evaluation.converged:
         return report.evaluation.message

@@ -10,8 +10,8 @@ import pytest
 from myriad.runtime import load, solve
 from myriad.runtime.cli import main
 from myriad.runtime.e2e import E2EConfig, expert_from_dataset, run_e2e
+from myriad.runtime.learn.dataset import Sampling, make_dataset, save_dataset
 from myriad.runtime.solvers import Ipopt
-from myriad.runtime.sysid.dataset import Sampling, make_dataset, save_dataset
 from myriad.runtime.transcriptions import SingleShooting
 
 GRID = SingleShooting(controls=50)

@@ -15,9 +15,9 @@ import pytest
 from myriad.runtime import load
 from myriad.runtime.data import ProblemData, default_data
 from myriad.runtime.e2e import UnrolledPlanner, default_planner_solver, make_implicit_solve
+from myriad.runtime.learn.models import Parametric
 from myriad.runtime.solvers import Extragradient
 from myriad.runtime.solvers.interior_point import InteriorPoint
-from myriad.runtime.sysid.models import Parametric
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 

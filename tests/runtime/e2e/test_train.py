@@ -10,8 +10,8 @@ import pytest
 from myriad.runtime import load, solve
 from myriad.runtime.cli import main
 from myriad.runtime.e2e import E2EConfig, run_e2e
+from myriad.runtime.learn.checkpoint import CheckpointMismatch
 from myriad.runtime.solvers import Extragradient, Ipopt
-from myriad.runtime.sysid.checkpoint import CheckpointMismatch
 from myriad.runtime.transcriptions import SingleShooting
 
 GRID = SingleShooting(controls=50)  # the published 100 in bench/e2e_table.py; 50 keeps this file's programs small

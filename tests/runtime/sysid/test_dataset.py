@@ -11,8 +11,8 @@ import pytest
 
 from myriad.runtime import Adaptive, load, simulate
 from myriad.runtime.atomic import atomic_open, atomic_write_text
-from myriad.runtime.sysid import dataset as dataset_module
-from myriad.runtime.sysid.dataset import Sampling, Trajectories, load_dataset, make_dataset, save_dataset
+from myriad.runtime.learn import dataset as dataset_module
+from myriad.runtime.learn.dataset import Sampling, Trajectories, load_dataset, make_dataset, save_dataset
 
 SPECS = Path(__file__).resolve().parents[3] / "specs"
 

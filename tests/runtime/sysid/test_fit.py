@@ -16,12 +16,13 @@ from jax.test_util import check_grads
 
 from myriad.runtime import RK4, Adaptive, Heun, load
 from myriad.runtime.integrators import rollout
+from myriad.runtime.learn.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
+from myriad.runtime.learn.dataset import Sampling, make_dataset
+from myriad.runtime.learn.loop import Stop
+from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid import losses
-from myriad.runtime.sysid.checkpoint import CheckpointMismatch, load_checkpoint, save_checkpoint
-from myriad.runtime.sysid.dataset import Sampling, make_dataset
 from myriad.runtime.sysid.fit import FitConfig, fit
 from myriad.runtime.sysid.losses import fit_integrator, layout, state_scale, trajectory_loss
-from myriad.runtime.sysid.models import NeuralODE, Parametric
 
 # The module, not the function (a package that re-exports ``fit`` would shadow it in a ``from`` import).
 fit_module = importlib.import_module("myriad.runtime.sysid.fit")
@@ -111,7 +112,7 @@ def test_integrator_and_scale_choices(system):
 def test_parametric_fit_recovers_the_true_parameters(system, data):
     model = Parametric(system)
     res = fit(model, data, FitConfig(optimizer=1e-2, epochs=400, validate_every=20, patience=None))
-    assert res.success and res.stopped == "max_epochs" and res.epochs == 400
+    assert res.success and res.stopped is Stop.MAX_EPOCHS and res.epochs == 400
     for name, true in model.true_params().items():
         assert abs(float(res.theta[name]) / float(true) - 1) < 1e-2, (name, res.theta)
     assert res.best_validation_loss < 1e-6 and res.integrator == "heun"
@@ -210,7 +211,7 @@ def test_non_finite_loss_stops_and_keeps_the_best(system, data):
     model = Parametric(system)
     bad = {"G": jnp.asarray(1.0), "D": jnp.asarray(-1e3)}  # x' = 1e3 x^2 + ...: inf within a few steps, then NaN
     res = fit(model, data, FitConfig(optimizer=1e-2, epochs=400, validate_every=20, patience=None), theta0=bad)
-    assert res.stopped == "non_finite" and not res.success and res.epochs == 0
+    assert res.stopped is Stop.NON_FINITE and not res.success and res.epochs == 0
     assert leaves_equal(res.theta, bad) and "not finite" in res.message
 
 

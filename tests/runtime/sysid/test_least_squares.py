@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from myriad.runtime import load
+from myriad.runtime.learn.dataset import Sampling, make_dataset
+from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.status import Status
 from myriad.runtime.sysid import least_squares as ls_module
-from myriad.runtime.sysid.dataset import Sampling, make_dataset
 from myriad.runtime.sysid.least_squares import LeastSquaresResult, least_squares
-from myriad.runtime.sysid.models import NeuralODE, Parametric
 
 N = 50  # a coarser grid than the published 100 keeps the suite fast; the data and the fit use the same one
 

@@ -10,10 +10,10 @@ import pytest
 
 from myriad.runtime import load, simulate
 from myriad.runtime.data import default_data
+from myriad.runtime.learn.models import ACTIVATIONS, LearnedSystem, NeuralODE, Parametric
 from myriad.runtime.solve import solve
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.status import Status
-from myriad.runtime.sysid.models import ACTIVATIONS, LearnedSystem, NeuralODE, Parametric
 from myriad.runtime.system import OptimalControlUnavailable
 from myriad.runtime.systems import NAMES
 from myriad.runtime.transcriptions import ForwardBackwardSweep, SingleShooting, Trapezoidal
@@ -21,7 +21,7 @@ from myriad.runtime.transcriptions import ForwardBackwardSweep, SingleShooting, 
 from ...helpers import sample_interval
 
 
-class Trajectories(NamedTuple):  # the shape of runtime/sysid/dataset.py's Trajectories
+class Trajectories(NamedTuple):  # the shape of runtime/learn/dataset.py's Trajectories
     controls: np.ndarray  # (B, N+1, m)
     states: np.ndarray  # (B, N+1, n)
 
@@ -201,7 +201,7 @@ def test_neural_ode_learned_system(cancer):
     model = NeuralODE(cancer, hidden=(8, 8))
     theta = model.init_params(jax.random.PRNGKey(0))
     learned = model.as_system(theta)
-    assert learned.optimal_control_kind == "none" and learned.model_label == "neural_ode"
+    assert learned.optimal_control_kind == "none" and learned.model_label == "node"
     other = model.as_system(model.init_params(jax.random.PRNGKey(5)))
     assert other == learned and hash(other) == hash(learned)
     assert NeuralODE(cancer, hidden=[8, 8]) == model and NeuralODE(cancer, hidden=(8, 9)) != model
@@ -218,7 +218,7 @@ def test_neural_ode_learned_system(cancer):
         learned.optimal_control(x, lam, t, params)
     sol = solve(learned, SingleShooting(controls=20), Ipopt(max_iter=50))
     assert isinstance(sol.status, Status) and sol.controls.shape == (21, 1)
-    with pytest.raises(OptimalControlUnavailable, match="neural_ode"):
+    with pytest.raises(OptimalControlUnavailable, match="node"):
         solve(learned, ForwardBackwardSweep(intervals=20))
 
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from myriad.runtime import load
+from myriad.runtime.learn.dataset import Sampling, make_dataset
+from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid import polish as polish_module
-from myriad.runtime.sysid.dataset import Sampling, make_dataset
 from myriad.runtime.sysid.fit import FitConfig, fit
-from myriad.runtime.sysid.models import NeuralODE, Parametric
 from myriad.runtime.sysid.polish import PolishConfig, polish
 from myriad.runtime.sysid.run import SysidConfig, run_sysid
 

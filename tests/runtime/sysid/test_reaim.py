@@ -1,4 +1,4 @@
-"""Terminal re-aiming (runtime/sysid/reaim.py): an aimed learned system plans to the shifted final values and is
+"""Terminal re-aiming (runtime/learn/reaim.py): an aimed learned system plans to the shifted final values and is
 another NLP; re-aiming a plan made on a wrong model brings the true system's final state to the required one."""
 
 import jax.numpy as jnp
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from myriad.runtime import load, solve
-from myriad.runtime.sysid.dataset import Sampling
-from myriad.runtime.sysid.evaluate import evaluate
-from myriad.runtime.sysid.models import Parametric
-from myriad.runtime.sysid.reaim import observe, reaim
+from myriad.runtime.learn.dataset import Sampling
+from myriad.runtime.learn.evaluate import evaluate
+from myriad.runtime.learn.models import Parametric
+from myriad.runtime.learn.reaim import observe, reaim
 from myriad.runtime.sysid.run import SysidConfig
 from myriad.runtime.transcriptions import SingleShooting, base
 

@@ -9,8 +9,8 @@ import numpy as np
 
 from myriad.runtime import load
 from myriad.runtime.cli import main
-from myriad.runtime.sysid.evaluate import evaluate
-from myriad.runtime.sysid.models import NeuralODE, Parametric
+from myriad.runtime.learn.evaluate import evaluate
+from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid.run import SysidConfig, run_sysid
 
 RECORD_KEYS = ("system", "model", "learned", "true", "standard_errors", "achieved_cost", "achieved_defect",

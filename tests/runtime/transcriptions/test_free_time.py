@@ -17,11 +17,11 @@ import pytest
 from myriad.runtime import load
 from myriad.runtime.cli import main
 from myriad.runtime.data import default_data
+from myriad.runtime.learn.dataset import make_dataset
 from myriad.runtime.rl.env import Env
 from myriad.runtime.solve import solve
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.sweep.config import SweepConfig, parse_method
-from myriad.runtime.sysid.dataset import make_dataset
 from myriad.runtime.system import UnsupportedFeature
 from myriad.runtime.transcriptions import (
     TRANSCRIPTIONS,

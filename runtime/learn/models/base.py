@@ -10,7 +10,7 @@ required final values and the costs ``L`` and ``phi`` (evaluated at the spec's p
 of arrays (data, differentiable, vmappable); the model object itself is a frozen, hashable dataclass holding only
 configuration, so it can be a static argument of ``jax.jit`` and two models with the same configuration are equal.
 
-Contract (see ``runtime/sysid/README.md``):
+Contract (see ``runtime/learn/README.md``):
 
 - ``init_params(key, data=None) -> theta``: starting parameters (float64 arrays);
 - ``vector_field(x, u, t, theta, spec_params) -> dx/dt``: pure, ``jit``/``vmap``/``grad``-able in ``theta``;
@@ -62,7 +62,8 @@ class AbstractModel(abc.ABC):
             final values and costs are those of every :class:`LearnedSystem` built from the model.
 
     Class attributes:
-        label: registry name (``"parametric"``, ``"neural_ode"``), also ``LearnedSystem.model_label``.
+        label: the model's one name (``"parametric"``, ``"node"``): its key in ``MODELS``, the configurations' and
+            the commands' ``model``, and ``LearnedSystem.model_label``.
         spec_form: True when the vector field *is* the spec's dynamics at some parameters (see
             :meth:`spec_form_params`), so the compiler's derivative artefacts (Jacobians, costates, u*) apply; a
             ``LearnedSystem`` of any other model derives Jacobians and costates by autodiff and has no u*.
@@ -72,14 +73,24 @@ class AbstractModel(abc.ABC):
 
     label: ClassVar[str]
     spec_form: ClassVar[bool] = False
+    # The class of the systems a model becomes (``as_system``): LearnedSystem, which registers itself here when its
+    # module is imported (the package's __init__ does), so this module does not import the one that subclasses it.
+    system_class: ClassVar[type]
+
+    # Per-model defaults of the learners (PyBaMM's ``default_*`` idea): a configuration field left at None takes its
+    # model's, so a new model brings its own and no learner names a model. Measured in docs/notes/node-training.md
+    # and docs/notes/e2e-node.md.
+    default_method: ClassVar[str] = "adam"  # system identification: how to fit (least squares or Adam)
+    default_rounds: ClassVar[int] = 1  # system identification: datasets in sequence
+    default_polish: ClassVar[bool] = False  # system identification: an L-BFGS polish after each Adam fit
+    default_reaim: ClassVar[int] = 0  # re-aims of the judged plan from observed true runs
+    default_unroll: ClassVar[int] = 10  # end-to-end learning: planner steps per iteration
 
     def __post_init__(self):
-        from .learned_system import LearnedSystem  # the module imports this one
-
         if not isinstance(self.system, System):
             raise TypeError(f"{type(self).__name__}: `system` must be a myriad System, "
                             f"got {type(self.system).__name__}")
-        if isinstance(self.system, LearnedSystem):
+        if isinstance(self.system, AbstractModel.system_class):
             raise TypeError(f"{type(self).__name__}: model the true system, not a LearnedSystem ({self.system!r})")
 
     # ---- the contract ----------------------------------------------------------------------------------------
@@ -111,9 +122,7 @@ class AbstractModel(abc.ABC):
     def as_system(self, theta: Any, aim: Any = None) -> "LearnedSystem":
         """The model with parameters ``theta`` as a :class:`LearnedSystem` (``solve`` takes it unchanged); ``aim``
         shifts the planner's final values (see :class:`LearnedSystem`)."""
-        from .learned_system import LearnedSystem
-
-        return LearnedSystem(self, theta, aim)
+        return AbstractModel.system_class(self, theta, aim)
 
     def n_parameters(self, theta: Any) -> int:
         """The number of trainable scalars in ``theta``."""

@@ -1,4 +1,4 @@
-"""Datasets for system identification: trajectories of a system's *true* dynamics under sampled controls.
+"""Trajectory datasets for the learners: trajectories of a system's *true* dynamics under sampled controls.
 
 On the grid t_k = k T / N, k = 0..N (N = ``Sampling.intervals``), with the spec's ranges r_u = u_max - u_min,
 r_x = x_max - x_min (elementwise) and s = spread * r_u:
@@ -39,10 +39,10 @@ from ..integrators import INTEGRATORS, AbstractIntegrator, Heun, rollout
 from ..loader import load
 from ..system import System, UnsupportedFeature
 
-__all__ = ["Sampling", "Trajectories", "Dataset", "make_dataset", "save_dataset", "load_dataset"]
+__all__ = ["Sampling", "Trajectories", "Dataset", "dataset_id", "make_dataset", "save_dataset", "load_dataset"]
 
 SCHEMES = ("random_walk", "uniform", "around")
-FORMAT, VERSION = "myriad.sysid.dataset", 1
+FORMAT, VERSION = "myriad.sysid.dataset", 1  # the name predates the kit; kept, so older files load
 _SPLITS = ("train", "validation", "test")
 _KERNEL = np.array([24.0, 35.0, 39.0, 35.0, 24.0]) / 157.0  # the published "Gaussian blur", exactly
 
@@ -353,3 +353,18 @@ def load_dataset(path: str | os.PathLike, system: System | str | os.PathLike | N
     splits = (Trajectories(arrays[f"{s}_controls"], arrays[f"{s}_states"]) for s in _SPLITS)
     return Dataset(arrays["times"], *splits, rec["system"], rec["spec_sha256"], Sampling.from_record(rec["sampling"]),
                    rec["seed"])
+
+
+def dataset_id(dataset: Dataset) -> str:
+    """A SHA-256 of what a fit reads from a dataset: system, spec hash, grid, train and validation arrays (the
+    identity a checkpoint checks)."""
+    h = hashlib.sha256(f"{dataset.system}\0{dataset.spec_sha256}\0".encode())
+    arrays = {"times": dataset.times}
+    for split in ("train", "validation"):
+        tr = getattr(dataset, split)
+        arrays[f"{split}.controls"], arrays[f"{split}.states"] = tr.controls, tr.states
+    for name, a in arrays.items():
+        a = np.ascontiguousarray(a, dtype="<f8")
+        h.update(f"{name}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()

@@ -1,4 +1,4 @@
-"""Checkpoints of a fit: parameters, optimiser state, PRNG key, epoch and the best-so-far, written atomically.
+"""Checkpoints of a learner's run: parameters, optimiser state, PRNG key, step and the best-so-far, written atomically.
 
 One checkpoint is one ``.npz`` file (NumPy arrays only, read back with ``allow_pickle=False``) holding
 
@@ -7,7 +7,7 @@ One checkpoint is one ``.npz`` file (NumPy arrays only, read back with ``allow_p
 * ``meta``: a JSON string (format, version, epoch, the dataset and configuration identities and descriptions, the
   leaves' key paths, shapes and dtypes, and any ``extra`` integers the caller keeps),
 
-written to a temporary file and renamed over the target (``_atomic.atomic_open``), so a reader sees the previous
+written to a temporary file and renamed over the target (``runtime/atomic.py``), so a reader sees the previous
 checkpoint or the complete new one. The same JSON is then written beside it as ``<name>.json`` for people and tools;
 the copy inside the ``.npz`` is the authoritative one (the pair cannot be replaced in one atomic step).
 
@@ -19,8 +19,6 @@ continues exactly where the interrupted one stopped.
 
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 import io
 import json
 import os
@@ -33,11 +31,9 @@ import numpy as np
 
 from ..atomic import atomic_open, atomic_write_text
 
-__all__ = [
-    "Checkpoint", "CheckpointMismatch", "config_identity", "dataset_id", "describe", "load_checkpoint",
-    "save_checkpoint",
-]
+__all__ = ["Checkpoint", "CheckpointMismatch", "load_checkpoint", "save_checkpoint"]
 
+# The format's name predates the learning kit; kept, so that checkpoints written before it still resume.
 FORMAT, VERSION = "myriad.sysid.checkpoint", 1
 _TREES = ("theta", "opt_state", "best_theta")
 
@@ -61,52 +57,6 @@ class Checkpoint(NamedTuple):
     extra: dict
 
 
-def dataset_id(dataset: Any) -> str:
-    """A SHA-256 of what a fit reads from a dataset: system, spec hash, grid, train and validation arrays."""
-    h = hashlib.sha256(f"{dataset.system}\0{dataset.spec_sha256}\0".encode())
-    arrays = {"times": dataset.times}
-    for split in ("train", "validation"):
-        tr = getattr(dataset, split)
-        arrays[f"{split}.controls"], arrays[f"{split}.states"] = tr.controls, tr.states
-    for name, a in arrays.items():
-        a = np.ascontiguousarray(a, dtype="<f8")
-        h.update(f"{name}{a.shape}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def describe(v: Any) -> Any:
-    """A JSON-ready, process-independent description of a configuration value (a callable by its qualified name,
-    never by a ``repr`` that carries a memory address)."""
-    if v is None or isinstance(v, (bool, int, float, str)):
-        return v
-    if isinstance(v, (tuple, list)):
-        return [describe(x) for x in v]
-    if callable(v):
-        return f"{getattr(v, '__module__', '?')}.{getattr(v, '__qualname__', type(v).__name__)}"
-    return repr(v)
-
-
-def config_identity(model: Any, config: Any, integrator: Any, stages: list, theta: Any) -> tuple[str, dict]:
-    """``(sha256, description)`` of what fixes a fit's sequence of iterates: the model's class and fields, the
-    optimiser, batch size, validation period, method, curriculum stages (all but the last one's end), gamma, scale,
-    seed, integrator and the trainable leaves' key paths; not ``epochs``, ``patience``, ``tol`` or
-    ``checkpoint_every``, which a resumed fit may change. A custom optax transformation is known only by its
-    ``init`` function's qualified name (and its state's leaves, checked on load): resume with the same one."""
-    opt = config.optimizer
-    desc = {
-        "model": type(model).__name__, "system": model.system.name,
-        "model_fields": {f.name: describe(getattr(model, f.name)) for f in dataclasses.fields(model)
-                         if f.name != "system"},
-        "optimizer": {"adam": opt} if isinstance(opt, float) else {"custom": describe(opt.init)},
-        "batch_size": config.batch_size, "validate_every": config.validate_every, "method": config.method,
-        "stages": [list(s) for s in stages[:-1]] + [list(stages[-1][:2])], "gamma": config.gamma,
-        "scale": config.scale, "seed": config.seed, "integrator": repr(integrator),
-        "theta": [jax.tree_util.keystr(p) for p, _ in jax.tree_util.tree_flatten_with_path(theta)[0]],
-    }
-    return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest(), desc
-
-
 def _is_data(leaf: Any) -> bool:
     return isinstance(leaf, (jax.Array, np.ndarray, np.generic, int, float, complex, bool))
 
@@ -128,7 +78,8 @@ def save_checkpoint(path: str | os.PathLike, *, theta: Any, opt_state: Any, key:
         epoch: the number of completed epochs.
         best_val: the best validation loss so far (may be inf).
         history: ``[(epoch, train_loss, val_loss), ...]``.
-        dataset_id, config_id: identities checked on load (see :func:`dataset_id`).
+        dataset_id, config_id: identities checked on load (the data's, e.g. :func:`.dataset.dataset_id`, and
+            the run's, :mod:`.identity`).
         config: a JSON-ready description of the configuration, to say *what* differs when ``config_id`` does.
         extra: JSON-ready scalars the caller needs back (counters).
 

@@ -63,7 +63,13 @@ class NeuralODE(AbstractModel):
     activation: str = "sigmoid"
     time_input: bool = False
 
-    label: ClassVar[str] = "neural_ode"
+    label: ClassVar[str] = "node"
+    # Datasets in sequence, a polish and re-aims are what bring a Neural ODE's plan to the required final values
+    # (docs/notes/node-training.md); the published unrolled planner takes 5 steps on one.
+    default_rounds: ClassVar[int] = 6
+    default_polish: ClassVar[bool] = True
+    default_reaim: ClassVar[int] = 6
+    default_unroll: ClassVar[int] = 5
 
     def __post_init__(self):
         super().__post_init__()

@@ -49,6 +49,9 @@ class Parametric(AbstractModel):
 
     label: ClassVar[str] = "parametric"
     spec_form: ClassVar[bool] = True
+    # Levenberg-Marquardt recovers the parameters (with standard errors) and the plan is then the true model's: one
+    # round, no re-aim; the published unrolled planner takes 10 steps.
+    default_method: ClassVar[str] = "least_squares"
 
     def __post_init__(self):
         super().__post_init__()

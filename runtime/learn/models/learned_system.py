@@ -66,7 +66,7 @@ class LearnedSystem(System):
 
     def __init__(self, model: AbstractModel, theta: Any, aim: Any = None):
         if not isinstance(model, AbstractModel):
-            raise TypeError(f"LearnedSystem: expected a sysid model, got {type(model).__name__}")
+            raise TypeError(f"LearnedSystem: expected a model (runtime.learn.models), got {type(model).__name__}")
         model.check_params(theta)
         true = model.system
         put = super().__setattr__
@@ -172,3 +172,6 @@ class LearnedSystem(System):
         if self.model.spec_form:
             return self.true_system.optimal_control(x, lam, t, self._spec_form(params))
         raise OptimalControlUnavailable(f"{self.name} [{self.model_label}]: {self.optimal_control_note}")
+
+
+AbstractModel.system_class = LearnedSystem  # what every model's as_system builds (see base.py)

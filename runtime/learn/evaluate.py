@@ -21,7 +21,7 @@ from ..solve import solve
 from ..system import System
 from .models.base import AbstractModel
 
-__all__ = ["Evaluation", "evaluate"]
+__all__ = ["Evaluation", "apply_plan", "evaluate"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +68,16 @@ class Evaluation:
         }
 
 
+def apply_plan(system: System, controls: Any, transcription: Any) -> tuple[float, list[float]]:
+    """``(cost, final-state defects)`` of ``controls`` applied to ``system`` at the spec's own parameters, simulated
+    on the plan's grid with the transcription's integrator; collocation (no integrator of its own) with the
+    published Heun."""
+    data = default_data(system)
+    integrator = getattr(transcription, "integrator", None) or Heun()
+    sim = simulate(system, controls, data.params, data.x0, integrator=integrator)
+    return float(sim.cost), [float(d) for d in np.asarray(sim.defect)[system.final_mask]]
+
+
 def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=None,
              optimum: Solution | None = None, plan: Solution | None = None) -> Evaluation:
     """Plan on ``model.as_system(theta)``, apply the plan to ``model.system``, and compare with the true optimum.
@@ -86,13 +96,8 @@ def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=Non
         plan = solve(model.as_system(theta), transcription, solver, resimulate=False)
     if optimum is None:
         optimum = solve(true, transcription, solver, resimulate=False)
-    data = default_data(true)
-    # Shooting is judged with its own integrator; collocation (no integrator of its own) with the published Heun.
-    integrator = getattr(transcription, "integrator", None) or Heun()
-    sim = simulate(true, plan.controls, data.params, data.x0, integrator=integrator)
-    mask = true.final_mask
-    achieved_defect = [float(d) for d in np.asarray(sim.defect)[mask]]
-    cost_a, defect_a, _ = resimulate(true, plan.times, plan.controls, data)
+    achieved_cost, achieved_defect = apply_plan(true, plan.controls, transcription)
+    cost_a, defect_a, _ = resimulate(true, plan.times, plan.controls, default_data(true))
     converged = plan.converged and optimum.converged
     if converged:
         message = "planned on the learned model and applied to the true system"
@@ -100,6 +105,6 @@ def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=Non
         message = f"planning on the learned model failed ({plan.status}): {plan.message}"
     else:
         message = f"the true-model optimum did not converge ({optimum.status}): {optimum.message}"
-    return Evaluation(plan=plan, optimum=optimum, achieved_cost=float(sim.cost), achieved_defect=achieved_defect,
+    return Evaluation(plan=plan, optimum=optimum, achieved_cost=achieved_cost, achieved_defect=achieved_defect,
                       achieved_simulated_cost=cost_a, achieved_simulated_defect=defect_a, converged=converged,
                       message=message)

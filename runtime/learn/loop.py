@@ -1,0 +1,100 @@
+"""The one training loop of every learner: steps, the non-finite stop, checkpoints on a schedule, a progress meter,
+and why it ended as a :class:`Stop`.
+
+A learner is an object holding its run's state (parameters, optimiser state, history, its best so far) with two
+methods the loop calls: ``step(index) -> Step`` (one epoch or iteration: take it, or say why not) and
+``save(done)`` (write a checkpoint after ``done`` steps). What a step is, what it records and when it is good enough
+stay the learner's own; the skeleton they shared (resume at ``start``, stop at a non-finite step without taking it,
+checkpoint every ``every`` steps, at the last one and at a successful stop, a bar) is written here once::
+
+    stop, message = train(learner, start=epoch, end=epochs, every=10, progress=None, exhausted=Stop.MAX_EPOCHS)
+
+A failure (:attr:`Stop.success` False) is never checkpointed: a resume replays from the last good checkpoint.
+"""
+
+from __future__ import annotations
+
+import enum
+import os
+from pathlib import Path
+from typing import NamedTuple, Protocol
+
+from .progress import progress_meter
+
+__all__ = ["CHECKPOINT", "Learner", "Step", "Stop", "check_run", "checkpoint_path", "train"]
+
+CHECKPOINT = "checkpoint.npz"
+
+
+class Stop(enum.Enum):
+    """Why a learner stopped; the value is the word its record and its command print."""
+
+    MAX_EPOCHS = "max_epochs"  # a fit ran all its epochs
+    COMPLETED = "completed"  # an end-to-end run ran all its iterations
+    CONVERGED = "converged"  # the validation loss reached the tolerance
+    EARLY_STOPPING = "early_stopping"  # patience ran out: validations in a row without improvement
+    NON_FINITE = "non_finite"  # a loss or gradient was NaN or inf; that step was not taken
+    STALLED = "stalled"  # no step could be taken (backtracking went below its smallest step)
+
+    def __str__(self) -> str:  # records and messages print the word, never "Stop.X"
+        return self.value
+
+    @property
+    def success(self) -> bool:
+        return self not in (Stop.NON_FINITE, Stop.STALLED)
+
+
+class Step(NamedTuple):
+    """What one step of a learner did: ``stop`` (None: go on) with its ``message``, and the meter's ``postfix``."""
+
+    stop: Stop | None = None
+    message: str = ""
+    postfix: str | None = None
+
+
+class Learner(Protocol):
+    desc: str  # the meter's label
+    unit: str  # what a step is ("epoch", "it")
+
+    def step(self, index: int) -> Step: ...
+
+    def save(self, done: int) -> None: ...
+
+
+def train(learner: Learner, *, start: int, end: int, every: int | None, progress: bool | None,
+          exhausted: Stop) -> tuple[Stop, str]:
+    """Run ``learner.step(index)`` for index = start, ..., end - 1 until one says stop; ``(stop, message)``.
+
+    Args:
+        start, end: the steps already done (a resumed run's) and the budget.
+        every: checkpoint after every this many steps (also after the last step and at a successful stop);
+            None: never.
+        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
+        exhausted: the stop to report when the budget ran out.
+    """
+    with progress_meter(progress, end, initial=start, desc=learner.desc, unit=learner.unit) as meter:
+        for index in range(start, end):
+            step = learner.step(index)
+            if step.stop is Stop.NON_FINITE:
+                return step.stop, step.message
+            meter.update(step.postfix)
+            done = index + 1
+            last = done == end if step.stop is None else step.stop.success
+            if every is not None and (done % every == 0 or last):
+                learner.save(done)
+            if step.stop is not None:
+                return step.stop, step.message
+    return exhausted, ""
+
+
+def check_run(where: str, *, resume: bool, checkpoint_dir: str | os.PathLike | None, progress: object) -> None:
+    """The learners' shared argument checks (before any work)."""
+    if resume and checkpoint_dir is None:
+        raise ValueError(f"{where}: resume=True needs a checkpoint_dir")
+    if progress not in (None, True, False):
+        raise ValueError(f"{where}: progress must be None (auto), True or False, got {progress!r}")
+
+
+def checkpoint_path(checkpoint_dir: str | os.PathLike | None) -> Path | None:
+    """Where a learner keeps its checkpoint in ``checkpoint_dir`` (None: no checkpoints)."""
+    return None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT

@@ -1,0 +1,110 @@
+"""The learning kit's shared pieces: the loop's stop and checkpoint rules, the meters, the model registry and the run
+identity (the learners' own tests cover them in use: tests/runtime/sysid/, tests/runtime/e2e/)."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+
+import optax
+import pytest
+
+from myriad.runtime.learn.identity import describe, digest, optimizer_identity
+from myriad.runtime.learn.loop import Step, Stop, check_run, train
+from myriad.runtime.learn.models import MODELS, AbstractModel, NeuralODE, Parametric, make_model, model_class
+from myriad.runtime.learn.progress import NoProgressMeter, TqdmProgressMeter, progress_meter
+from myriad.runtime.loader import load
+
+
+class Scripted:
+    """A learner whose steps return what a script says: records the steps run and the checkpoints written."""
+
+    desc, unit = "test", "it"
+
+    def __init__(self, script: dict):
+        self.script, self.ran, self.saved = script, [], []
+
+    def step(self, index: int) -> Step:
+        self.ran.append(index)
+        stop = self.script.get(index)
+        return Step(stop, "" if stop is None else f"{stop} at {index}")
+
+    def save(self, done: int) -> None:
+        self.saved.append(done)
+
+
+def test_stop_is_one_enum_printed_as_its_word():
+    assert issubclass(Stop, enum.Enum) and not issubclass(Stop, str)
+    assert str(Stop.MAX_EPOCHS) == "max_epochs" and f"{Stop.COMPLETED}" == "completed"
+    assert {s for s in Stop if not s.success} == {Stop.NON_FINITE, Stop.STALLED}
+
+
+def test_the_loop_runs_the_budget_and_checkpoints_on_schedule_and_at_the_end():
+    run = Scripted({})
+    assert train(run, start=2, end=9, every=3, progress=False, exhausted=Stop.MAX_EPOCHS) == (Stop.MAX_EPOCHS, "")
+    assert run.ran == list(range(2, 9)) and run.saved == [3, 6, 9]
+    run = Scripted({})
+    assert train(run, start=0, end=4, every=None, progress=False, exhausted=Stop.COMPLETED)[0] is Stop.COMPLETED
+    assert run.saved == []
+    run = Scripted({})  # nothing left to run (a resume at the end): no step, no checkpoint
+    assert train(run, start=5, end=5, every=1, progress=False, exhausted=Stop.COMPLETED)[0] is Stop.COMPLETED
+    assert run.ran == run.saved == []
+
+
+@pytest.mark.parametrize("stop, saved", [(Stop.CONVERGED, [3, 4]), (Stop.EARLY_STOPPING, [3, 4]),
+                                         (Stop.STALLED, [3]), (Stop.NON_FINITE, [3])])
+def test_a_success_is_checkpointed_where_it_stops_a_failure_never(stop, saved):
+    run = Scripted({3: stop})
+    assert train(run, start=0, end=10, every=3, progress=False, exhausted=Stop.MAX_EPOCHS) == (stop, f"{stop} at 3")
+    assert run.ran == [0, 1, 2, 3] and run.saved == saved
+
+
+def test_a_stall_at_the_last_step_is_not_checkpointed_unless_due():
+    run = Scripted({4: Stop.STALLED})
+    assert train(run, start=0, end=5, every=3, progress=False, exhausted=Stop.COMPLETED)[0] is Stop.STALLED
+    assert run.saved == [3]
+
+
+def test_meters_and_argument_checks(capsys):
+    assert type(progress_meter(False, 3)) is NoProgressMeter
+    assert type(progress_meter(None, 3)) is NoProgressMeter  # stderr is not a terminal under pytest
+    with progress_meter(True, 3, desc="bar", unit="epoch") as meter:
+        assert isinstance(meter, TqdmProgressMeter)
+        meter.update("loss 1")
+        meter.update()
+    assert "bar" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="resume=True needs a checkpoint_dir"):
+        check_run("x", resume=True, checkpoint_dir=None, progress=None)
+    with pytest.raises(ValueError, match="progress must be"):
+        check_run("x", resume=False, checkpoint_dir=None, progress="yes")
+
+
+def test_one_registry_of_model_names_with_the_defaults_on_the_classes():
+    assert MODELS == {"parametric": Parametric, "node": NeuralODE}
+    for name, cls in MODELS.items():
+        assert issubclass(cls, AbstractModel) and cls.label == name
+        assert cls.default_method in ("least_squares", "adam") and cls.default_rounds >= 1
+    assert (Parametric.default_unroll, NeuralODE.default_unroll) == (10, 5)
+    assert (Parametric.default_reaim, NeuralODE.default_reaim) == (0, 6)
+    with pytest.raises(ValueError, match="unknown model 'neural_ode'; expected one of \\('parametric', 'node'\\)"):
+        model_class("neural_ode", "E2EConfig")
+    system = load("cancer_treatment")
+    assert make_model("parametric", system, hidden=(4,), activation="relu") == Parametric(system)
+    assert make_model("node", system, hidden=(4,), activation="relu") == NeuralODE(system, (4,), "relu")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Settings:
+    rate: float = 0.5
+    widths: tuple = (2, 3)
+
+
+def test_run_identity_describes_without_memory_addresses():
+    opt = optax.adam(1e-3)
+    desc = {"settings": describe(_Settings()), "f": describe(len), "opt": describe(opt),
+            "optimizer": optimizer_identity(opt), "lr": optimizer_identity(0.01)}
+    assert desc["settings"] == {"type": "_Settings", "rate": 0.5, "widths": [2, 3]}
+    assert desc["f"] == "builtins.len" and desc["opt"] == desc["optimizer"]["custom"] and "0x" not in json.dumps(desc)
+    assert desc["lr"] == {"adam": 0.01}
+    assert digest(desc) == digest(json.loads(json.dumps(desc))) and len(digest(desc)) == 64
