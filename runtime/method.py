@@ -1,7 +1,9 @@
 """The method interface: how an optimal-control problem is solved, whether by transcription or indirectly.
 
 :func:`~myriad.runtime.solve.solve` and :func:`~myriad.runtime.solve.solve_batch` only ever call these methods, so
-a new kind of method (a transcription, an indirect method) plugs in without touching them.
+a new kind of method (a transcription, an indirect method) plugs in without touching them. Every method is registered
+by its label in :data:`~myriad.runtime.solve_config.METHODS` (the union of the transcriptions' and the indirect
+methods' registries), the names the commands and the sweep take.
 """
 
 from __future__ import annotations
