@@ -4,6 +4,7 @@ page or a link that no longer resolves fails here)."""
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import os
 import re
@@ -41,6 +42,28 @@ def test_table_cells_are_parsed():
 def test_readme_table_cells_are_short():
     long = [(line, len(cell)) for line, cell in table_cells((ROOT / "README.md").read_text()) if len(cell) > MAX_CELL]
     assert not long, f"README.md cells over {MAX_CELL} characters (line, length): {long}; history goes to docs/notes/"
+
+
+def test_readme_python_examples_parse():
+    """Every ```python block of README.md is valid Python (they are run by hand; see the README's Quickstart)."""
+    blocks = re.findall(r"^```python\n(.*?)^```", (ROOT / "README.md").read_text(), re.MULTILINE | re.DOTALL)
+    assert len(blocks) >= 6
+    for block in blocks:
+        ast.parse(block)
+
+
+@pytest.mark.parametrize("module", ["myriad.runtime.cli", "myriad.compiler.cli"])
+def test_readme_commands_table_lists_every_command(module, capsys):
+    """Each subcommand of ``myriad`` and ``myriadc`` (from their --help) has a row in README.md's Commands table."""
+    main = importlib.import_module(module).main
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    names = re.findall(r"^    ([a-z][\w-]*)", capsys.readouterr().out, re.MULTILINE)
+    program = "myriad" if module == "myriad.runtime.cli" else "myriadc"
+    rows = [cell for _, cell in table_cells((ROOT / "README.md").read_text()) if cell.startswith(f"`{program} ")]
+    assert names
+    missing = [name for name in names if not any(re.match(rf"`{program} {name}[ `]", row) for row in rows)]
+    assert not missing, f"README.md's Commands table has no row for {program} {missing}"
 
 
 @pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None, reason="mkdocs is not installed (the docs extra)")
