@@ -122,7 +122,7 @@ def casadi_one_at_a_time(system, name, params, x0, n):
             from myriad.runtime.solve import transcribe
             from myriad.runtime.transcriptions import default_data
 
-            nlp_z0 = np.asarray(transcribe(system, SingleShooting(controls=100, integrator=Heun()))
+            nlp_z0 = np.asarray(transcribe(system, SingleShooting(intervals=100, integrator=Heun()))
                                 .initial_guess(default_data(system)), float)
         r = peer.solve(nlp_z0 / peer.s_u)
         wall += r["seconds"]
@@ -144,7 +144,7 @@ def _rel(a, b):
 def run_system(name, args) -> dict:
     system = load(name)
     tr = (Trapezoidal(intervals=args.grid) if args.transcription == "trapezoidal"
-          else SingleShooting(controls=args.grid, integrator=Heun()))
+          else SingleShooting(intervals=args.grid, integrator=Heun()))
     solver = BATCHED[args.solver]()
     params, x0 = make_batch(system, args.batch, args.spread, args.seed)
     subset = min(args.subset, args.batch)

@@ -16,7 +16,7 @@ Both sides solve the same NLP, the one runtime/transcriptions/single_shooting.py
 CasADi side: f, L and phi come from the compiler's sympy IR through myriad.compiler.casadi_export (not from the
 generated JAX code); the rollout is unrolled in SX, derivatives are CasADi's AD, IPOPT is CasADi's nlpsol plugin.
 Parameters and x0 are nlpsol parameters (data, as in myriad), not constants folded into the graph.
-myriad side: solve(system, SingleShooting(controls=100, integrator=Heun()), SOLVER, resimulate=False), SOLVER being
+myriad side: solve(system, SingleShooting(intervals=100, integrator=Heun()), SOLVER, resimulate=False), SOLVER being
 Ipopt() (cyipopt, one Python callback per evaluation) or, with --solver interior_point, InteriorPoint() (the whole
 solve one compiled XLA program; its own algorithm and stopping test, IPOPT's tol = 1e-8, so the costs agree to about
 1e-8, not to the last digit).
@@ -69,7 +69,7 @@ from myriad.runtime.transcriptions import control_scale, default_data, state_sca
 
 ROOT = Path(__file__).resolve().parent.parent
 N = 100
-SETTING = SingleShooting(controls=N, integrator=Heun())
+SETTING = SingleShooting(intervals=N, integrator=Heun())
 
 
 # ---- the CasADi side ---------------------------------------------------------------------------------------------

@@ -27,7 +27,7 @@ def main() -> None:
     ap.add_argument("--systems", nargs="+", default=list(NAMES))
     ap.add_argument("--no-resimulate", action="store_true", help="skip the adaptive re-simulation")
     args = ap.parse_args()
-    setting = SingleShooting(controls=100, integrator=Heun())
+    setting = SingleShooting(intervals=100, integrator=Heun())
     print(f"device: {jax.devices()[0].platform}; imports {time.perf_counter() - STARTED:.2f} s")
     print(f"{'system':18s} {'cost':>12s} {'target':>10s} {'meets':>5s} {'cold s':>7s} {'compile s':>9s} "
           f"{'solve s':>7s} {'warm s':>7s}")

@@ -29,7 +29,7 @@ from .transcriptions import ForwardBackwardSweep, HermiteSimpson, MultipleShooti
 __all__ = ["BenchRow", "run_bench", "bench_system", "markdown_table", "PUBLISHED_SETTING", "ALTERNATIVES",
            "meets_target", "usable_cores"]
 
-PUBLISHED_SETTING = SingleShooting(controls=100, integrator=Heun())
+PUBLISHED_SETTING = SingleShooting(intervals=100, integrator=Heun())
 ALTERNATIVES = (
     MultipleShooting(intervals=50, steps_per_interval=2, integrator=RK4()),
     Trapezoidal(intervals=100),
@@ -169,8 +169,8 @@ def _worker_setup(cache_folder: str | None, x64: bool, compiler_options: dict | 
     by one process are read back by the others and by later runs)."""
     import jax
 
-    from . import programs
-    from .cache import enable_compilation_cache
+    from .compilation import programs
+    from .compilation.jax_cache import enable_compilation_cache
 
     jax.config.update("jax_enable_x64", x64)
     programs.set_compiler_options(compiler_options)
@@ -202,7 +202,7 @@ def _parallel(names, jobs, alternatives, solver, plots_dir, progress) -> list[Be
     """
     import jax
 
-    from . import programs
+    from .compilation import programs
 
     queue = collections.deque(sorted(names, key=_expected_work, reverse=True))
     lock = threading.Lock()

@@ -96,7 +96,7 @@ def _add_cache_options(parser):
 def _configure_jax(args=None):
     import jax
 
-    from .cache import enable_compilation_cache
+    from .compilation.jax_cache import enable_compilation_cache
 
     jax.config.update("jax_enable_x64", True)  # trajectory optimisation needs float64
     # Before anything compiles: JAX reads the cache folder once, at its first compilation.
@@ -264,7 +264,7 @@ def _cmd_bench(args) -> int:
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
-    from . import programs
+    from .compilation import programs
     from .solvers import SOLVERS
 
     solver = SOLVERS[args.solver]() if args.solver else None

@@ -13,11 +13,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .compilation.programs import register_namedtuple
 from .system import System
 
 __all__ = ["ProblemData", "default_data", "batch_data", "check_structural_params"]
 
 
+@register_namedtuple  # the argument of every stored program
 class ProblemData(NamedTuple):
     """The data of one problem (a pytree; under ``vmap`` every leaf gains a leading batch axis).
 

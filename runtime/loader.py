@@ -17,15 +17,16 @@ from pathlib import Path
 from . import systems as _registry
 from .system import System
 
-__all__ = ["load", "cache_dir", "PEER_PREFIX"]
+__all__ = ["load", "spec_build_dir", "PEER_PREFIX"]
 
 PEER_PREFIX = "peers/"  # load("peers/goddard_rocket"): a problem of the peer collection (specs/peers/README.md)
 
 _loaded: dict[str, System] = {}
 
 
-def cache_dir() -> Path:
-    """``$MYRIAD_CACHE`` or ``~/.cache/myriad``: where specs loaded by path are compiled."""
+def spec_build_dir() -> Path:
+    """``$MYRIAD_CACHE``/systems or ``~/.cache/myriad/systems``: where specs loaded by path are compiled (not JAX's
+    compilation cache, :func:`myriad.runtime.compilation.jax_cache.compilation_cache_dir`)."""
     base = os.environ.get("MYRIAD_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "myriad")
     return Path(base) / "systems"
 
@@ -65,7 +66,7 @@ def load(target: str | os.PathLike) -> System:
     if key in _loaded:
         return _loaded[key]
     compiled = compile_file(path)
-    folder = cache_dir() / key[:32]
+    folder = spec_build_dir() / key[:32]
     module_path = folder / f"{compiled.name}.py"
     if not module_path.exists() or module_path.read_text(encoding="utf-8") != compiled.text:
         folder.mkdir(parents=True, exist_ok=True)

@@ -53,7 +53,8 @@ class NLP:
             reading the decisions ``z[stage_index[k]]``; for a stage-wise (Riccati) Newton step.
         key: what the functions depend on, as text (a spec-generated system's source and a transcription's
             configuration; :func:`~myriad.runtime.transcriptions.transcribe` sets it), so that their traced
-            programs may be kept on disk for later processes (:mod:`myriad.runtime.programs`); None: never kept.
+            programs may be kept on disk for later processes (:mod:`~myriad.runtime.compilation.programs`); None:
+            never kept.
     """
 
     objective: Callable[[Any, Data], Any]

@@ -9,12 +9,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .compilation import CompiledFunction, program_key, programs
 from .integrators import AbstractIntegrator, Heun, rollout_with_cost
 from .system import System
 
 __all__ = ["Simulation", "simulate"]
 
 
+@programs.register_namedtuple  # the output of a stored simulation program
 class Simulation(NamedTuple):
     """The outcome of :func:`simulate` (a pytree of arrays).
 
@@ -82,7 +84,7 @@ def simulate(
     args = (controls, p, x0)
     if stored is None or any(isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(args)):
         return _simulate(system, integrator, controls, p, x0)
-    # Concrete inputs with the program store on (myriad.runtime.programs): one program per system, integrator and
+    # Concrete inputs with the program store on (compilation.programs): one program per system, integrator and
     # shapes, read back from disk by a later process instead of traced again.
     # Arrays keep their dtype; a Python number takes the controls' (what a weakly typed scalar becomes in _simulate).
     args = jax.tree.map(lambda a: jax.device_put(np.asarray(a) if hasattr(a, "dtype")
@@ -93,16 +95,11 @@ def simulate(
 
 @functools.lru_cache(maxsize=256)
 def _stored_fn(system: System, integrator: AbstractIntegrator, key: str):
-    from .solvers.base import CompiledFunction
-
     return CompiledFunction(lambda controls, p, x0: _simulate(system, integrator, controls, p, x0), key)
 
 
 def _stored(system: System, integrator: AbstractIntegrator):
     """The simulation as a stored program, or None (store off, or the system or integrator has no key)."""
-    from . import programs
-    from .solvers.base import program_key
-
     if programs.program_folder() is None:
         return None
     key = program_key(programs.system_key(system), "simulate", programs.describe(integrator))

@@ -54,7 +54,7 @@ def solve(
 
     Args:
         system: a system object or a name/path for :func:`myriad.runtime.load`.
-        transcription: how to solve (default: the published setting, ``SingleShooting(controls=100)`` with Heun): a
+        transcription: how to solve (default: the published setting, ``SingleShooting(intervals=100)`` with Heun): a
             direct transcription, or an indirect method such as :class:`ForwardBackwardSweep`.
         solver: the NLP solver of a direct transcription (default ``Ipopt()``); an indirect method takes none, and
             refuses one.

@@ -99,7 +99,7 @@ def run(args) -> int:
     from ..transcriptions import SingleShooting
     from .train import run_e2e
 
-    transcription, expert = SingleShooting(controls=args.intervals), None
+    transcription, expert = SingleShooting(intervals=args.intervals), None
     if args.expert is not None:
         from .expert import expert_from_dataset
 

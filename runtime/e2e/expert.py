@@ -60,11 +60,11 @@ def expert_from_dataset(dataset: Dataset | str | os.PathLike, system: System | s
         raise ValueError(f"expert: {source} was sampled with perturbed starts (x0_std={dataset.sampling.x0_std:g}); "
                          f"the planner starts at the spec's x0, so make the expert's dataset with x0_std=0")
     transcription = SingleShooting() if transcription is None else transcription
-    n_controls = getattr(transcription, "controls", None)
+    n_controls = transcription.intervals if isinstance(transcription, SingleShooting) else None
     if n_controls != dataset.intervals or getattr(transcription, "grid", None) is not None:
         raise ValueError(f"expert: {source} is on a uniform grid of {dataset.intervals} intervals; the transcription "
-                         f"{type(transcription).__name__}(controls={n_controls}) must be a uniform shooting grid of "
-                         f"as many (e.g. SingleShooting(controls={dataset.intervals}))")
+                         f"{type(transcription).__name__}(intervals={n_controls}) must be a uniform shooting grid of "
+                         f"as many (e.g. SingleShooting(intervals={dataset.intervals}))")
     if not np.isclose(dataset.horizon, float(system.horizon), rtol=1e-12, atol=0.0):
         raise ValueError(f"expert: {source} covers [0, {dataset.horizon:g}], the spec's horizon is "
                          f"{float(system.horizon):g}")

@@ -12,7 +12,7 @@ from .base import AbstractIntegrator, lerp
 __all__ = ["Adaptive"]
 
 # diffrax (and equinox under it: ~2.5 s of imports) is imported when a step is first traced, not with the package: a
-# process whose programs come from the store (myriad.runtime.programs) never traces one.
+# process whose programs come from the store (myriad.runtime.compilation.programs) never traces one.
 _SOLVERS = ("tsit5", "dopri5", "dopri8")
 
 

@@ -8,26 +8,26 @@ and returns an :class:`~myriad.runtime.nlp.NLPResult`. Three pieces are shared:
 
 * :func:`constraint_violation`, the one feasibility measure every solver reports and judges success by;
 * :class:`ScaledProblem`, the change of variables ``w = z / z_scale`` every solver works in;
-* :func:`cached`, a per-NLP cache of compiled functions, and :class:`CompiledFunction`, a jitted function compiled
-  ahead of time once per argument signature, so that a second solve of the same NLP with new ``data`` of the same
-  shapes never traces or compiles again and compile time is measured apart from solve time.
+* :func:`cached`, a per-NLP cache of what a solver compiled (its
+  :class:`~myriad.runtime.compilation.CompiledFunction` objects), so that a second solve of the same NLP with new
+  ``data`` of the same shapes never traces or compiles again.
 """
 
 from __future__ import annotations
 
 import abc
 import dataclasses
-import os
-import time
 import weakref
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, ClassVar, Hashable, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import programs
+# The compilation infrastructure, re-exported for the solvers that compile through it (ipopt, slsqp, pure).
+from ..compilation import CompiledFunction as CompiledFunction
+from ..compilation import compile_many as compile_many
+from ..compilation import program_key as program_key
 from ..nlp import NLP, NLPResult, evaluation
 
 __all__ = [
@@ -151,7 +151,7 @@ class ScaledProblem:
     c_upper: np.ndarray
     # (w, data) -> (F, c): fused when the NLP provides objective_and_constraints (see NLP), else both calls.
     evaluate: Callable[[Any, Any], tuple[Any, Any]]
-    key: str | None = None  # the NLP's key (myriad.runtime.programs): what its functions depend on, or None
+    key: str | None = None  # the NLP's key (myriad.runtime.compilation.programs): what its functions depend on, or None
     # (w, lam, data, objective_weight=1) -> (F, c, dF/dw, dc/dw, Hessian of the Lagrangian in w):
     # NLP.lagrangian_derivatives, or None.
     derivatives: Callable[[Any, Any, Any], tuple] | None = None
@@ -231,7 +231,7 @@ def _scaled_stages(derivatives: Callable, s: Any, index: np.ndarray) -> Callable
     return scaled
 
 
-# ---- compiled functions and the per-NLP cache ------------------------------------------------------------------
+# ---- data and the per-NLP cache ------------------------------------------------------------------------------
 
 
 def unstack(tree: Any, size: int) -> list:
@@ -261,79 +261,8 @@ def _canonical_leaf(x: Any) -> Any:
     return host if host.dtype == jax.dtypes.canonicalize_dtype(host.dtype) else jax.device_put(host)
 
 
-def _signature(args: tuple) -> Hashable:
-    leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
-
-
-def program_key(*parts: str | None) -> str | None:
-    """A program's key from its parts (an NLP's or system's key, a role, a configuration); None if any is None."""
-    return None if any(p is None for p in parts) else "|".join(parts)
-
-
-class CompiledFunction:
-    """``jax.jit(fn)`` compiled ahead of time (``.lower(...).compile()``) once per argument signature.
-
-    Calling an AOT-compiled executable can never retrace, so the compile cost is paid, and measured, exactly once
-    per signature, and calls with arguments of another shape fail loudly instead of recompiling silently.
-    """
-
-    def __init__(self, fn: Callable, key: str | None = None, **jit_kwargs: Any):
-        self._jitted = jax.jit(fn, **jit_kwargs)
-        self._executables: dict[Hashable, Any] = {}
-        # With a key (what the closure depends on, see myriad.runtime.programs), the traced program may be kept on
-        # disk for later processes; static arguments and donation are not exported, so such a function has none.
-        self.key = None if jit_kwargs else key
-
-    def lower(self, *args: Any) -> Any:
-        return programs.lower(self._jitted, self.key, args)
-
-    def compile(self, *args: Any) -> float:
-        """Compile for the signature of ``args`` unless already done; returns the seconds spent (0 if cached)."""
-        key = _signature(args)
-        if key in self._executables:
-            return 0.0
-        start = time.perf_counter()
-        self._executables[key] = self.lower(*args).compile(compiler_options=programs.compiler_options())
-        return time.perf_counter() - start
-
-    def __call__(self, *args: Any) -> Any:
-        return self._executables[_signature(args)](*args)
-
-    def is_compiled(self, *args: Any) -> bool:
-        return _signature(args) in self._executables
-
-
-    def executable(self, *args: Any) -> Callable:
-        """The compiled executable for the signature of ``args`` (compile first): skips the lookup per call."""
-        return self._executables[_signature(args)]
-
-
 _CACHE: "weakref.WeakKeyDictionary[NLP, dict[Hashable, Any]]" = weakref.WeakKeyDictionary()
 
-
-def compile_many(jobs: list[tuple[CompiledFunction, tuple]]) -> float:
-    """Compile several functions at once; returns the seconds spent (0 when all were cached).
-
-    Tracing and lowering hold the GIL, so they run one after another; XLA's compilation releases it, so the lowered
-    programs compile in parallel threads (on the 2-core machine the table's compile time drops by about a third).
-    List the largest program first: it starts earliest.
-    """
-    pending = [(cf, args) for cf, args in jobs if not cf.is_compiled(*args)]
-    if not pending:
-        return 0.0
-    start = time.perf_counter()
-    lowered = [(cf, _signature(args), cf.lower(*args)) for cf, args in pending]
-    workers = max(1, min(len(lowered), os.cpu_count() or 1))
-    options = programs.compiler_options()
-    if workers == 1:
-        executables = [low.compile(compiler_options=options) for _, _, low in lowered]
-    else:
-        with ThreadPoolExecutor(workers) as pool:
-            executables = list(pool.map(lambda item: item[2].compile(compiler_options=options), lowered))
-    for (cf, key, _), exe in zip(lowered, executables):
-        cf._executables[key] = exe
-    return time.perf_counter() - start
 
 def cached(nlp: NLP, key: Hashable, build: Callable[[], T]) -> T:
     """The object ``build()`` made for ``(nlp, key)``, built on first use and kept while ``nlp`` is alive.

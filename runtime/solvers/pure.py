@@ -14,9 +14,10 @@ This is the tier that a learner differentiates through, an RL environment calls,
 
 Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
 the loop; reverse mode does not: ``jax.grad`` of a function of a pure solve raises JAX's ``ValueError`` ("Reverse-mode
-differentiation does not work for lax.while_loop ..."), never a silent zero (``tests/runtime/solvers/test_pure_solvers.py``
-checks it). Gradients of a solution with respect to ``data`` need an implicit-function rule (a ``custom_vjp`` on the
-optimality conditions) or unrolling a fixed number of steps; neither is provided yet.
+differentiation does not work for lax.while_loop ..."), never a silent zero
+(``tests/runtime/solvers/test_pure_solvers.py`` checks it). Gradients of a solution with respect to ``data`` need an
+implicit-function rule (a ``custom_vjp`` on the optimality conditions) or unrolling a fixed number of steps; neither
+is provided yet.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import programs
+from ..compilation import programs
 from .base import CompiledFunction, cached, canonical_data, constraint_violations, program_key, unstack
 from .stepper import Stepper, queued
 

@@ -45,7 +45,7 @@ def _usage(message: str) -> int:
 
 
 def run(args) -> int:
-    from ..cache import cache_dir as resolve_cache_dir
+    from ..compilation.jax_cache import compilation_cache_dir as resolve_cache_dir
     from .backends import BACKENDS
     from .config import SweepConfig
     from .run import run_sweep

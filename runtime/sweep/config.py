@@ -15,7 +15,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from ..cache import DEFAULT_CACHE_DIR  # one folder for the workers and the commands; `~` expanded per node
+# One folder for the workers and the commands; `~` expanded per node.
+from ..compilation.jax_cache import DEFAULT_CACHE_DIR
 from ..configs import parse_value
 from .kinds import KINDS
 

@@ -25,14 +25,14 @@ VOLATILE = ("host", "pid")
 
 
 def _setup(cache_dir: str | None) -> None:
-    """float64 (every task needs it), and this machine's shared compilation cache (:mod:`myriad.runtime.cache`).
+    """float64 (every task needs it), and this machine's shared compilation cache (:mod:`..compilation.jax_cache`).
 
     A process that already has a cache folder (``JAX_COMPILATION_CACHE_DIR``, or the caller's own in the serial
     backend) keeps it: JAX reads it once, at its first compilation. ``cache_dir`` None: no cache.
     """
     import jax
 
-    from ..cache import enable_compilation_cache
+    from ..compilation.jax_cache import enable_compilation_cache
 
     jax.config.update("jax_enable_x64", True)
     if cache_dir:

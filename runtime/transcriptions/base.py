@@ -12,15 +12,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import programs
+from ..compilation import CompiledFunction, program_key, programs
 from ..data import ProblemData
 from ..method import AbstractMethod
 from ..nlp import NLP
 from ..solution import Solution
 from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradient, Ipopt
-from ..solvers.base import CompiledFunction, program_key, unstack
+from ..solvers.base import unstack
 from ..system import System
 from .error import REFERENCE_SUBSTEPS, estimate, interval_errors
+from .grid import check_grid, grid_argument
 
 __all__ = ["AbstractTranscription", "TrajectoryFn", "path_violation", "sample_final_time", "transcribe"]
 
@@ -75,18 +76,33 @@ class AbstractTranscription(AbstractMethod):
     order: ClassVar[int]
     steps_per_mesh_interval: ClassVar[int] = 1
 
+    # The grid: N intervals in a field ``intervals`` and a ``grid`` field, checked here once for every transcription
+    # whose N is its own size field (single shooting and the collocations); multiple shooting, whose ``intervals``
+    # counts shooting intervals of S steps each, overrides all four.
+
+    @classmethod
+    def on_grid(cls, intervals, **options: Any) -> "AbstractTranscription":
+        intervals, grid = grid_argument(intervals)
+        return cls(intervals=intervals, grid=grid, **options)
+
+    def __post_init__(self):
+        owner, intervals = type(self).__name__, getattr(self, "intervals")
+        if intervals < 1:
+            raise ValueError(f"{owner}: intervals must be at least 1, got {intervals}")
+        object.__setattr__(self, "grid", check_grid(owner, getattr(self, "grid"), intervals))
+
     @property
-    @abc.abstractmethod
     def grid_intervals(self) -> int:
         """N, the number of intervals of the control grid (the size ``on_grid(N)`` takes)."""
+        return getattr(self, "intervals")
 
-    @abc.abstractmethod
     def with_grid(self, grid: tuple[float, ...]) -> "AbstractTranscription":
         """This transcription, every other option kept, on the grid of normalised node positions ``grid``.
 
         Raises:
             ValueError: a grid this transcription cannot have (see ``__post_init__``).
         """
+        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
 
     def positions(self) -> np.ndarray:
         """The normalised node positions of the control grid, (N + 1,): the ``grid``, or the uniform one."""
@@ -188,8 +204,8 @@ def path_violation(system: System, times, states, controls, params) -> float:
 def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
     """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object.
 
-    Its ``key`` (:mod:`myriad.runtime.programs`) is the system's source and the transcription's configuration when
-    both are plain; otherwise None, and its programs are traced afresh in every process."""
+    Its ``key`` (:mod:`myriad.runtime.compilation.programs`) is the system's source and the transcription's
+    configuration when both are plain; otherwise None, and its programs are traced afresh in every process."""
     nlp = transcription.transcribe(system)
     key = program_key(programs.system_key(system), programs.describe(transcription))
     return nlp if key is None or nlp.key is not None else dataclasses.replace(nlp, key=key)

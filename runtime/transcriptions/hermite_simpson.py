@@ -24,7 +24,7 @@ from ._common import (
     state_scale,
 )
 from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, check_grid, column, free_node_times, grid_argument, node_times, weighted_sum
+from .grid import Grid, column, free_node_times, node_times, weighted_sum
 
 __all__ = ["HermiteSimpson"]
 
@@ -79,23 +79,6 @@ class HermiteSimpson(AbstractTranscription):
 
     intervals: int = 50
     grid: Grid | None = None
-
-    @classmethod
-    def on_grid(cls, intervals, **options) -> "HermiteSimpson":
-        intervals, grid = grid_argument(intervals)
-        return cls(intervals=intervals, grid=grid, **options)
-
-    def __post_init__(self):
-        if self.intervals < 1:
-            raise ValueError(f"HermiteSimpson: intervals must be at least 1, got {self.intervals}")
-        object.__setattr__(self, "grid", check_grid("HermiteSimpson", self.grid, self.intervals))
-
-    @property
-    def grid_intervals(self) -> int:
-        return self.intervals
-
-    def with_grid(self, grid) -> "HermiteSimpson":
-        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
 
     def _times(self, horizon: float):
         """Node times, midpoint times, the 2N + 1 points of the half-step grid, and the step (see grid.py)."""

@@ -79,7 +79,7 @@ class MultipleShooting(AbstractTranscription):
 
         Without ``steps_per_interval``, the default 5 steps per shooting interval (the largest of 5, 4, 3, 2, 1 that
         divides N), so ``on_grid(100)`` is 20 shooting intervals of 5 steps: the same control grid as
-        ``SingleShooting(controls=100)``.
+        ``SingleShooting(intervals=100)``.
         """
         intervals, grid = grid_argument(intervals)
         if grid is not None:

@@ -23,7 +23,7 @@ from ._common import (
     state_scale,
 )
 from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .grid import Grid, free_node_times, node_times, rollout_on, rollout_with_cost_on
 from .staged import stage_derivatives as staged_stage_derivatives
 from .staged import staged_derivatives
 
@@ -62,7 +62,7 @@ class SingleShooting(AbstractTranscription):
     instead of the solve failing. Required final values stay hard.
 
     Attributes:
-        controls: N, the number of control intervals (N + 1 control nodes).
+        intervals: N, the number of control intervals (N + 1 control nodes).
         integrator: the one-step method of the rollout (Heun, as published).
         enforce_final_state_bounds: add the final-node state-bound rows.
         checkpoint: rematerialise the rollout's steps when differentiating (see ``rollout``). The derivative
@@ -71,44 +71,30 @@ class SingleShooting(AbstractTranscription):
             16 of the 18 systems; a system whose step is expensive (Rocket Landing) loses. Values are identical
             either way. Measurements: docs/notes/single-shooting-checkpoint.md.
         grid: None (uniform), or the N + 1 normalised control nodes 0 = s_0 < ... < s_N = 1 (see ``grid.py``);
-            the integrator steps follow it. ``SingleShooting.on_grid(grid)`` sets ``controls`` from it.
+            the integrator steps follow it. ``SingleShooting.on_grid(grid)`` sets ``intervals`` from it.
         soft_state_bounds: None (hard final-state bounds), or the penalty rho > 0 per unit of violation of a
             bound row (in the row's scale: state / nominal scale) that makes them elastic (above).
     """
 
     label: ClassVar[str] = "single_shooting"
 
-    controls: int = 100
+    intervals: int = 100
     integrator: AbstractIntegrator = Heun()
     enforce_final_state_bounds: bool = True
     checkpoint: bool = True
     grid: Grid | None = None
     soft_state_bounds: float | None = None
 
-    @classmethod
-    def on_grid(cls, intervals, **options) -> "SingleShooting":
-        intervals, grid = grid_argument(intervals)
-        return cls(controls=intervals, grid=grid, **options)
-
-    @property
-    def grid_intervals(self) -> int:
-        return self.controls
-
     @property
     def order(self) -> int:
         return self.integrator.order
-
-    def with_grid(self, grid) -> "SingleShooting":
-        return dataclasses.replace(self, controls=len(grid) - 1, grid=tuple(grid))
 
     @property
     def quadrature(self) -> str:
         return self.integrator.label
 
     def __post_init__(self):
-        if self.controls < 1:
-            raise ValueError(f"SingleShooting: controls must be at least 1, got {self.controls}")
-        object.__setattr__(self, "grid", check_grid("SingleShooting", self.grid, self.controls, "controls"))
+        super().__post_init__()  # intervals and grid (see AbstractTranscription)
         rho = self.soft_state_bounds
         if rho is not None:
             if isinstance(rho, bool) or not isinstance(rho, (int, float)) or not (np.isfinite(rho) and rho > 0):
@@ -116,7 +102,7 @@ class SingleShooting(AbstractTranscription):
             object.__setattr__(self, "soft_state_bounds", float(rho))
 
     def transcribe(self, system: System) -> NLP:
-        N, m = self.controls, system.n_controls
+        N, m = self.intervals, system.n_controls
         T_fixed = float(system.horizon)
         times, h = node_times(self.grid, N, T_fixed)
         positions = self.positions()
@@ -255,7 +241,7 @@ class SingleShooting(AbstractTranscription):
     def sample(self, system, states, controls, final_time=None):
         del states
         T = sample_final_time(system, final_time)
-        times, _ = node_times(self.grid, self.controls, T)
+        times, _ = node_times(self.grid, self.intervals, T)
         U = np.asarray(controls(times), dtype=np.float64).reshape(-1)
         if self.soft_state_bounds is not None and self.enforce_final_state_bounds:
             U = np.concatenate([U, np.zeros(2 * bounded_free_states(system).size)])  # the slacks: no violation

@@ -24,7 +24,7 @@ from ._common import (
     state_scale,
 )
 from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, check_grid, column, free_node_times, grid_argument, node_times, weighted_sum
+from .grid import Grid, column, free_node_times, node_times, weighted_sum
 
 __all__ = ["Trapezoidal"]
 
@@ -61,23 +61,6 @@ class Trapezoidal(AbstractTranscription):
 
     intervals: int = 100
     grid: Grid | None = None
-
-    @classmethod
-    def on_grid(cls, intervals, **options) -> "Trapezoidal":
-        intervals, grid = grid_argument(intervals)
-        return cls(intervals=intervals, grid=grid, **options)
-
-    def __post_init__(self):
-        if self.intervals < 1:
-            raise ValueError(f"Trapezoidal: intervals must be at least 1, got {self.intervals}")
-        object.__setattr__(self, "grid", check_grid("Trapezoidal", self.grid, self.intervals))
-
-    @property
-    def grid_intervals(self) -> int:
-        return self.intervals
-
-    def with_grid(self, grid) -> "Trapezoidal":
-        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
 
     def transcribe(self, system: System) -> NLP:
         N = self.intervals

@@ -1,4 +1,5 @@
-"""The persistent compilation cache (``myriad.runtime.cache``): where it goes, and that a second process reuses it."""
+"""JAX's persistent compilation cache (``myriad.runtime.compilation.jax_cache``): where it goes, and that a second
+process reuses it."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import subprocess
 import sys
 import textwrap
 
-from myriad.runtime.cache import DEFAULT_CACHE_DIR, ENV_VAR, cache_dir
+from myriad.runtime.compilation.jax_cache import DEFAULT_CACHE_DIR, ENV_VAR, compilation_cache_dir
 
 # A fresh interpreter (JAX reads the cache folder once per process) that configures JAX as the `myriad` command line
 # does for ARGV, compiles one small program and reports the cache hits JAX records and the folder in use.
@@ -40,14 +41,15 @@ def _entries(folder) -> set[str]:
 
 def test_folder_resolution(monkeypatch, tmp_path):
     monkeypatch.delenv(ENV_VAR, raising=False)
-    assert cache_dir() == os.path.expanduser(DEFAULT_CACHE_DIR)
-    assert cache_dir("~/x") == os.path.join(os.path.expanduser("~"), "x")
+    assert compilation_cache_dir() == os.path.expanduser(DEFAULT_CACHE_DIR)
+    assert compilation_cache_dir("~/x") == os.path.join(os.path.expanduser("~"), "x")
     monkeypatch.setenv(ENV_VAR, str(tmp_path / "env"))
-    assert cache_dir() == str(tmp_path / "env")
-    assert cache_dir(str(tmp_path / "arg")) == str(tmp_path / "arg")  # an explicit folder beats the environment
+    assert compilation_cache_dir() == str(tmp_path / "env")
+    # An explicit folder beats the environment.
+    assert compilation_cache_dir(str(tmp_path / "arg")) == str(tmp_path / "arg")
     for off in ("off", "none", "0", ""):
         monkeypatch.setenv(ENV_VAR, off)
-        assert cache_dir() is None
+        assert compilation_cache_dir() is None
 
 
 def test_second_process_reuses_the_cache(tmp_path):

@@ -218,7 +218,7 @@ def small(transcription: str, name: str):
     Van der Pol's single shooting needs 20 Heun steps over its 10 s horizon: with 10, 12 or 16 the rollout from the
     transcription's own initial guess overflows (objective inf or NaN)."""
     grids = {
-        "single_shooting": SingleShooting(controls=20 if name == "van_der_pol" else 10),
+        "single_shooting": SingleShooting(intervals=20 if name == "van_der_pol" else 10),
         "multiple_shooting": MultipleShooting(intervals=4, steps_per_interval=3),
         "trapezoidal": Trapezoidal(intervals=8),
         "hermite_simpson": HermiteSimpson(intervals=6),

@@ -18,7 +18,7 @@ from myriad.runtime.transcriptions import MultipleShooting, SingleShooting, Trap
 # Systems with terminal costs, required final values, final-state bounds, two controls and time dependence.
 SYSTEMS = ("bacteria", "rocket_landing", "tumour", "predator_prey", "van_der_pol", "cancer_treatment")
 FUSED = {
-    "single_shooting": SingleShooting(controls=40, integrator=Heun()),
+    "single_shooting": SingleShooting(intervals=40, integrator=Heun()),
     "multiple_shooting": MultipleShooting(intervals=4, steps_per_interval=10, integrator=RK4()),
 }
 
@@ -75,7 +75,7 @@ def test_evaluate_falls_back_to_separate_calls():
 def test_checkpointed_rollout_has_the_same_values_and_derivatives(name):
     system = load(name)
     data = default_data(system)
-    plain, remat = (SingleShooting(controls=30, checkpoint=flag).transcribe(system) for flag in (False, True))
+    plain, remat = (SingleShooting(intervals=30, checkpoint=flag).transcribe(system) for flag in (False, True))
     lam = np.random.default_rng(3).standard_normal(plain.n_constraints)
 
     def lagrangian(nlp):

@@ -1,4 +1,5 @@
-"""The program store (``myriad.runtime.programs``): keys, a later process that traces nothing, and its fallbacks."""
+"""The program store (``myriad.runtime.compilation.programs``): keys, a later process that traces nothing, and its
+fallbacks."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from myriad.runtime import RK4, Heun, MultipleShooting, SingleShooting, load, programs
+from myriad.runtime import RK4, Heun, MultipleShooting, SingleShooting, load
+from myriad.runtime.compilation import programs
 from myriad.runtime.solve import transcribe
 from myriad.runtime.solvers import InteriorPoint
 
@@ -29,9 +31,9 @@ def store(tmp_path):
 
 
 def test_describe_is_a_canonical_text_of_plain_configurations():
-    a = programs.describe(SingleShooting(controls=100, integrator=Heun()))
-    assert a == programs.describe(SingleShooting(controls=100, integrator=Heun()))
-    others = [SingleShooting(controls=99, integrator=Heun()), SingleShooting(controls=100, integrator=RK4()),
+    a = programs.describe(SingleShooting(intervals=100, integrator=Heun()))
+    assert a == programs.describe(SingleShooting(intervals=100, integrator=Heun()))
+    others = [SingleShooting(intervals=99, integrator=Heun()), SingleShooting(intervals=100, integrator=RK4()),
               MultipleShooting(intervals=100), InteriorPoint(), InteriorPoint(tol=1e-9)]
     texts = [programs.describe(o) for o in others]
     assert None not in texts and len({a, *texts}) == 1 + len(others)
@@ -48,7 +50,7 @@ def test_system_keys_name_the_generated_source():
         pass
 
     assert programs.system_key(Handmade()) is None
-    nlp = transcribe(load("simple_case"), SingleShooting(controls=10, integrator=Heun()))
+    nlp = transcribe(load("simple_case"), SingleShooting(intervals=10, integrator=Heun()))
     assert nlp.key is not None and programs.system_key(load("simple_case")) in nlp.key
 
 
@@ -110,7 +112,7 @@ _CHILD = textwrap.dedent("""
     import json, sys
     import jax
     jax.config.update("jax_enable_x64", True)
-    from myriad.runtime.cache import enable_compilation_cache
+    from myriad.runtime.compilation.jax_cache import enable_compilation_cache
     enable_compilation_cache(sys.argv[1])
     from myriad.runtime import Heun, SingleShooting, load, solve
     from myriad.runtime.solvers import SOLVERS
@@ -119,7 +121,7 @@ _CHILD = textwrap.dedent("""
     calls = []
     dynamics = type(system).dynamics
     type(system).dynamics = staticmethod(lambda *a: calls.append(1) or dynamics(*a))
-    sol = solve(system, SingleShooting(controls=12, integrator=Heun()), SOLVERS[sys.argv[2]]())
+    sol = solve(system, SingleShooting(intervals=12, integrator=Heun()), SOLVERS[sys.argv[2]]())
     print(json.dumps({"calls": len(calls), "cost": sol.cost, "simulated": sol.simulated_cost,
                       "error": sol.error_estimate, "converged": sol.converged}))
 """)
@@ -142,7 +144,7 @@ def test_a_second_process_traces_nothing(tmp_path, solver):
 def test_compiler_options_reach_every_compile_and_change_no_value():
     """`myriad bench` compiles at XLA's backend optimisation level 0: the options reach both compile paths (a bad one
     is refused by XLA), and the solve gives the same optimum to rounding."""
-    from myriad.runtime.solvers.base import CompiledFunction, compile_many
+    from myriad.runtime.compilation import CompiledFunction, compile_many
 
     system = load("mould_fungicide")
     try:
@@ -156,10 +158,10 @@ def test_compiler_options_reach_every_compile_and_change_no_value():
         assert programs.compiler_options() == programs.QUICK
         from myriad.runtime import solve
 
-        quick = solve(system, SingleShooting(controls=40, integrator=Heun()), resimulate=False)
+        quick = solve(system, SingleShooting(intervals=40, integrator=Heun()), resimulate=False)
     finally:
         programs.set_compiler_options(None)
-    full = solve(system, SingleShooting(controls=40, integrator=Heun()), resimulate=False)
+    full = solve(system, SingleShooting(intervals=40, integrator=Heun()), resimulate=False)
     assert programs.compiler_options() is None and quick.converged and full.converged
     np.testing.assert_allclose(quick.cost, full.cost, rtol=1e-12)
     np.testing.assert_allclose(quick.controls, full.controls, rtol=1e-9, atol=1e-12)

@@ -39,7 +39,7 @@ def double_integrator():
     HermiteSimpson(intervals=20),
     Trapezoidal(intervals=200),
     MultipleShooting(intervals=10, steps_per_interval=4, integrator=RK4()),
-    SingleShooting(controls=50, integrator=RK4()),
+    SingleShooting(intervals=50, integrator=RK4()),
 ], ids=lambda t: type(t).__name__)
 def test_scalar_lq_reaches_tanh1(lq, transcription):
     sol = solve(lq, transcription, Ipopt())
@@ -78,7 +78,7 @@ def test_published_setting_meets_targets_on_a_subset():
     # The full 18-system table runs in `myriad bench`; here a few quick ones, against the published targets.
     for name in ("simple_case", "van_der_pol", "mould_fungicide", "bacteria"):
         system = load(name)
-        sol = solve(system, SingleShooting(controls=100), Ipopt())
+        sol = solve(system, SingleShooting(intervals=100), Ipopt())
         target = system.reference["target"]
         assert sol.converged, (name, sol.message)
         assert sol.cost <= target + 0.005 * abs(target), (name, sol.cost, target)
@@ -114,7 +114,7 @@ def test_solvers_agree_on_a_smooth_lenhart_system():
 
 def test_no_recompilation_between_solves_with_same_shapes():
     system = load("mould_fungicide")
-    tr = SingleShooting(controls=40)
+    tr = SingleShooting(intervals=40)
     solve(system, tr, Ipopt(), resimulate=False)  # warm: compiles once
     compiles = []
 
@@ -140,7 +140,7 @@ def test_default_data_is_host_arrays_and_device_arrays_reuse_its_program():
     on_device = jax.tree.map(jax.numpy.asarray, data)
     traced = default_data(system, params={"r": on_device.params["r"]}, x0=on_device.x0)
     assert isinstance(traced.params["r"], jax.Array) and isinstance(traced.x0, jax.Array)  # kept, not copied back
-    tr = SingleShooting(controls=40)
+    tr = SingleShooting(intervals=40)
     host = tr.solve_problem(system, Ipopt(), data)
     device = tr.solve_problem(system, Ipopt(), on_device)
     assert host.converged and device.compile_seconds == 0.0

@@ -36,6 +36,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ...compilation.programs import register_namedtuple
 from ...status import Status
 from ..stepper import Stepper
 from . import kkt
@@ -70,6 +71,7 @@ STALL_STEP, STALL_COUNT = 1e-10, 3
 WARM_MU, WARM_PUSH = 1e-6, 1e-9
 
 
+@register_namedtuple  # it crosses a stored program's boundary
 class WarmStart(NamedTuple):
     """Where a solve starts, in the barrier problem's own terms: a cold start (:func:`make_solve_fn`'s ``cold``,
     IPOPT's defaults) or the end of an earlier solve (``InteriorPointSolution.warm``: its point, multipliers and
@@ -86,6 +88,7 @@ class WarmStart(NamedTuple):
     fresh: jax.Array
 
 
+@register_namedtuple
 class InteriorPointSolution(NamedTuple):
     """One solve's output (pure JAX; a batch has a leading axis on every field).
 

@@ -18,7 +18,7 @@ from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
 jax.config.update("jax_enable_x64", True)
-GRID = SingleShooting(controls=50)
+GRID = SingleShooting(intervals=50)
 
 
 @pytest.fixture(scope="module")

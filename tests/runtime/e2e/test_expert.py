@@ -14,7 +14,7 @@ from myriad.runtime.learn.dataset import Sampling, make_dataset, save_dataset
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.transcriptions import SingleShooting
 
-GRID = SingleShooting(controls=50)
+GRID = SingleShooting(intervals=50)
 AROUND = Sampling(controls="around", spread=0.0, x0_std=0.0, intervals=50)
 
 
@@ -58,7 +58,7 @@ def test_datasets_that_cannot_be_an_expert_are_refused(recorded, tmp_path):
     with pytest.raises(ValueError, match="split must be one of"):
         expert_from_dataset(dataset, system, GRID, split="all")
     with pytest.raises(ValueError, match="uniform shooting grid of as many"):
-        expert_from_dataset(dataset, system, SingleShooting(controls=100))
+        expert_from_dataset(dataset, system, SingleShooting(intervals=100))
     with pytest.raises(ValueError, match="spec sha256"):
         expert_from_dataset(path, load("bioreactor"), GRID)
     moved = make_dataset(system, dataclasses.replace(AROUND, x0_std=0.1), trajectories=(1, 0, 0),

@@ -23,7 +23,7 @@ from myriad.runtime.transcriptions.base import transcribe
 
 # A coarser grid than the published 100 keeps the programs small (20 is too coarse: Heun steps of 1 drive the tumour
 # density negative at the guesses, where log(1/x) is NaN).
-GRID = SingleShooting(controls=50)
+GRID = SingleShooting(intervals=50)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from myriad.runtime.solvers import Ipopt
 from myriad.runtime.sysid.run import SysidConfig, node_fit_config, run_sysid
 from myriad.runtime.transcriptions import SingleShooting
 
-GRID = SingleShooting(controls=50)
+GRID = SingleShooting(intervals=50)
 WIDTH = (16, 16)
 FIT = SysidConfig(model="node", hidden=WIDTH, rounds=1, polish=None, fit=node_fit_config(150))
 NODE = E2EConfig(model="node", hidden=WIDTH, gradient="implicit", iterations=200, optimizer=1e-2)

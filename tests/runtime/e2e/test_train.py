@@ -14,7 +14,7 @@ from myriad.runtime.learn.checkpoint import CheckpointMismatch
 from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.transcriptions import SingleShooting
 
-GRID = SingleShooting(controls=50)  # the published 100 in bench/e2e_table.py; 50 keeps this file's programs small
+GRID = SingleShooting(intervals=50)  # the published 100 in bench/e2e_table.py; 50 keeps this file's programs small
 
 
 @pytest.fixture(scope="module")

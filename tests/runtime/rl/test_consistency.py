@@ -23,7 +23,7 @@ N = 100
 @pytest.mark.parametrize("name", NAMES)
 def test_open_loop_return_of_the_optimisers_controls_is_minus_its_cost(name):
     system = load(name)
-    sol = solve(system, SingleShooting(controls=N, integrator=Euler()), Ipopt(), resimulate=False)
+    sol = solve(system, SingleShooting(intervals=N, integrator=Euler()), Ipopt(), resimulate=False)
     assert sol.converged, sol.message
     env = make_jax(system, steps=N, integrator=Euler(), normalize_actions=False)
     episode = play(env, np.asarray(sol.controls)[:-1], env.default_params())

@@ -177,11 +177,11 @@ def test_real_points_against_the_dense_path(name):
     """At a point of the published NLP (rocket landing: six terminal rows), the stage-wise and the dense barrier
     problem agree: values, gradient, Jacobian, Hessian products, ``delta_w`` and the Newton step."""
     system = load(name)
-    problem = ScaledProblem.from_nlp(transcribe(system, SingleShooting(controls=100, integrator=Heun())))
+    problem = ScaledProblem.from_nlp(transcribe(system, SingleShooting(intervals=100, integrator=Heun())))
     data = default_data(system)
     stagewise, dense = Layout(problem, "riccati"), Layout(problem, "dense")
     rng = np.random.default_rng(0)
-    w0 = jnp.asarray(problem.to_w(transcribe(system, SingleShooting(controls=100, integrator=Heun()))
+    w0 = jnp.asarray(problem.to_w(transcribe(system, SingleShooting(intervals=100, integrator=Heun()))
                                   .initial_guess(data)))
     x = dense.start(w0 * (1.0 + 0.05 * rng.standard_normal(w0.shape)), data)
     lam, row_scale = jnp.asarray(rng.standard_normal(dense.m)), jnp.asarray(rng.uniform(0.5, 1.0, dense.m))
@@ -215,7 +215,7 @@ def test_real_points_against_the_dense_path(name):
 def test_a_vmapped_batch_agrees_with_ipopt():
     """End to end (the loop, restoration-free here, the line search's second-order correction): ``solve_batch``'s
     default on a CPU vmaps the stage-wise solve; each member as IPOPT solves it."""
-    system, transcription = load("van_der_pol"), SingleShooting(controls=100, integrator=Heun())
+    system, transcription = load("van_der_pol"), SingleShooting(intervals=100, integrator=Heun())
     solver = InteriorPoint()
     nlp = transcribe(system, transcription)
     assert solver.kkt_method(nlp, vmapped=True) == "riccati" and solver.kkt_method(nlp) == "dense"

@@ -216,7 +216,7 @@ def test_neural_ode_learned_system(cancer):
                                cancer.running_cost_grad_u(x, u, t, params["spec"]) + fu.T @ lam, rtol=1e-12)
     with pytest.raises(OptimalControlUnavailable):
         learned.optimal_control(x, lam, t, params)
-    sol = solve(learned, SingleShooting(controls=20), Ipopt(max_iter=50))
+    sol = solve(learned, SingleShooting(intervals=20), Ipopt(max_iter=50))
     assert isinstance(sol.status, Status) and sol.controls.shape == (21, 1)
     with pytest.raises(OptimalControlUnavailable, match="node"):
         solve(learned, ForwardBackwardSweep(intervals=20))

@@ -61,7 +61,7 @@ def test_shooting_estimate_is_the_exact_local_error(integrator, multiple):
             tr = MultipleShooting(intervals=n // 5, steps_per_interval=5, integrator=integrator)
             z = tr.sample(system, lambda t: (R ** np.rint(np.asarray(t) / h))[:, None], lambda t: np.zeros((len(t), 1)))
         else:
-            tr, z = SingleShooting(controls=n, integrator=integrator), np.zeros(n + 1)
+            tr, z = SingleShooting(intervals=n, integrator=integrator), np.zeros(n + 1)
         nlp = transcribe(system, tr)
         times, states, controls = (np.asarray(a) for a in nlp.unravel(jnp.asarray(z), data))
         np.testing.assert_allclose(states[:, 0], _STEPS[integrator.label](-B / n) ** np.arange(n + 1), rtol=1e-12)
@@ -108,7 +108,7 @@ def simple_case():
 
 
 @pytest.mark.parametrize("method", [
-    lambda n: SingleShooting(controls=n),
+    lambda n: SingleShooting(intervals=n),
     Trapezoidal.on_grid,
     HermiteSimpson.on_grid,
 ], ids=["single_shooting_heun", "trapezoidal", "hermite_simpson"])

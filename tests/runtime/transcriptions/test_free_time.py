@@ -69,7 +69,7 @@ def scaled_pair(tmp_path_factory):
 
 
 def _methods():
-    return [SingleShooting(controls=8), MultipleShooting(intervals=4, steps_per_interval=2), Trapezoidal(intervals=8),
+    return [SingleShooting(intervals=8), MultipleShooting(intervals=4, steps_per_interval=2), Trapezoidal(intervals=8),
             HermiteSimpson(intervals=8), Trapezoidal.on_grid((0.0, 0.1, 0.35, 0.5, 0.8, 1.0))]
 
 

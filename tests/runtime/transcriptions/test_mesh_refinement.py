@@ -58,7 +58,7 @@ def test_grids_are_checked_and_stored_as_hashable_tuples():
                         ((0.0, math.nan, 1.0), "non-finite"), ((0.0,), "intervals must be at least 1")]:
         with pytest.raises(ValueError, match=match):
             Trapezoidal.on_grid(grid)
-    with pytest.raises(ValueError, match=r"the grid has 2 intervals but controls = 100; build it with "
+    with pytest.raises(ValueError, match=r"the grid has 2 intervals but intervals = 100; build it with "
                                          r"SingleShooting.on_grid\(grid\)"):
         SingleShooting(grid=(0.0, 0.5, 1.0))
     with pytest.raises(ValueError, match="intervals \\* steps_per_interval = 1 \\* 5 = 5"):

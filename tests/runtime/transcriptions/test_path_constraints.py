@@ -76,7 +76,7 @@ def _bryson_denham_solution():
     return states, controls
 
 
-@pytest.mark.parametrize("method", [SingleShooting(controls=100), MultipleShooting.on_grid(20),
+@pytest.mark.parametrize("method", [SingleShooting(intervals=100), MultipleShooting.on_grid(20),
                                     Trapezoidal(intervals=200), HermiteSimpson(intervals=20)],
                          ids=lambda m: m.label)
 def test_bryson_denham_optimum_with_the_wall_met_at_every_node(bryson_denham, method):
@@ -92,7 +92,7 @@ def test_bryson_denham_optimum_with_the_wall_met_at_every_node(bryson_denham, me
 def test_path_rows_come_last_point_major_and_scaled(bryson_denham):
     """At the analytic solution the wall rows are x(t_p) / l (scale: the finite bound l), after every other row."""
     states, controls = _bryson_denham_solution()
-    for method in (SingleShooting(controls=12), MultipleShooting(intervals=3, steps_per_interval=4),
+    for method in (SingleShooting(intervals=12), MultipleShooting(intervals=3, steps_per_interval=4),
                    Trapezoidal(intervals=12), HermiteSimpson(intervals=12)):
         nlp = transcribe(bryson_denham, method)
         data = default_data(bryson_denham)

@@ -26,8 +26,8 @@ def test_soft_bounds_keep_a_feasible_optimum(solver):
     # Bacteria's optimum sits on its final-state bound x(T) <= 10 (a non-zero multiplier): the elastic rows with a
     # penalty above it change neither the plan nor the cost beyond the solver's tolerance.
     system = load("bacteria")
-    hard = solve(system, SingleShooting(controls=40), solver, resimulate=False)
-    soft = solve(system, SingleShooting(controls=40, soft_state_bounds=10 * abs(float(hard.cost))), solver,
+    hard = solve(system, SingleShooting(intervals=40), solver, resimulate=False)
+    soft = solve(system, SingleShooting(intervals=40, soft_state_bounds=10 * abs(float(hard.cost))), solver,
                  resimulate=False)
     assert hard.converged and soft.converged
     assert abs(float(soft.cost) - float(hard.cost)) <= 1e-7 * abs(float(hard.cost))
@@ -38,10 +38,10 @@ def test_soft_bounds_keep_a_feasible_optimum(solver):
 @pytest.mark.parametrize("solver", [Ipopt(), InteriorPoint()], ids=["ipopt", "interior_point"])
 def test_soft_bounds_violate_an_unreachable_bound_least(solver):
     system = load(SPECS / "final_bound_unreachable.yaml")
-    hard = solve(system, SingleShooting(controls=20), solver, resimulate=False)
+    hard = solve(system, SingleShooting(intervals=20), solver, resimulate=False)
     assert not hard.converged  # x(1) >= 1 > 0.5 whatever u does
     rho = 3.0
-    tr = SingleShooting(controls=20, soft_state_bounds=rho)
+    tr = SingleShooting(intervals=20, soft_state_bounds=rho)
     soft = solve(system, tr, solver, resimulate=False)
     assert soft.converged, soft.message
     # Least violation: u = 0, x(1) = 1, the slack n = (1 - 0.5) / s, the cost rho n (the integral of u^2 is 0).
@@ -53,7 +53,7 @@ def test_soft_bounds_violate_an_unreachable_bound_least(solver):
 
 def test_soft_bounds_layout_and_arguments():
     system = load("predator_prey")  # x and y bounded at the final node, z required
-    hard, soft = SingleShooting(controls=10), SingleShooting(controls=10, soft_state_bounds=5.0)
+    hard, soft = SingleShooting(intervals=10), SingleShooting(intervals=10, soft_state_bounds=5.0)
     nh, ns = hard.transcribe(system), soft.transcribe(system)
     assert ns.n_variables == nh.n_variables + 4 and ns.n_constraints == nh.n_constraints
     sample = soft.sample(system, None, lambda t: np.full((np.size(t), 1), 0.5))

@@ -45,11 +45,11 @@ def _reference(nlp, z, lam, data):
 
 
 @pytest.mark.parametrize("name, transcription", [
-    ("rocket_landing", SingleShooting(controls=30, integrator=Heun())),  # 6 rows, 2 controls, trig dynamics
-    ("bear_populations", SingleShooting(controls=25, integrator=RK4())),  # 3 controls, a terminal cost
-    ("harvest", SingleShooting(controls=30, integrator=Heun())),  # no rows at all
-    ("epidemic", SingleShooting(controls=20, integrator=RK4(), grid=tuple(np.linspace(0, 1, 21) ** 1.3))),
-    ("cartpole", SingleShooting(controls=25, integrator=Heun(), grid=tuple(np.linspace(0, 1, 26) ** 0.8))),
+    ("rocket_landing", SingleShooting(intervals=30, integrator=Heun())),  # 6 rows, 2 controls, trig dynamics
+    ("bear_populations", SingleShooting(intervals=25, integrator=RK4())),  # 3 controls, a terminal cost
+    ("harvest", SingleShooting(intervals=30, integrator=Heun())),  # no rows at all
+    ("epidemic", SingleShooting(intervals=20, integrator=RK4(), grid=tuple(np.linspace(0, 1, 21) ** 1.3))),
+    ("cartpole", SingleShooting(intervals=25, integrator=Heun(), grid=tuple(np.linspace(0, 1, 26) ** 0.8))),
 ])
 def test_staged_derivatives_equal_jax_hessian(name, transcription):
     system = load(name)
@@ -100,9 +100,10 @@ def test_shared_inputs_and_a_nonlinear_terminal():
 def test_not_staged_where_other_terms_reach_the_decisions():
     """A free final time, path rows and elastic slacks reach the Lagrangian outside the stages: no staged hook."""
     assert transcribe(load(f"{SCHEMA2}/min_time_double_integrator.yaml"),
-                      SingleShooting(controls=10)).lagrangian_derivatives is None
-    assert transcribe(load(f"{SCHEMA2}/keep_out_zone.yaml"), SingleShooting(controls=10)).lagrangian_derivatives is None
-    assert transcribe(load("bacteria"), SingleShooting(controls=10, soft_state_bounds=100.0)
+                      SingleShooting(intervals=10)).lagrangian_derivatives is None
+    assert transcribe(load(f"{SCHEMA2}/keep_out_zone.yaml"),
+                      SingleShooting(intervals=10)).lagrangian_derivatives is None
+    assert transcribe(load("bacteria"), SingleShooting(intervals=10, soft_state_bounds=100.0)
                       ).lagrangian_derivatives is None
 
 
@@ -115,7 +116,7 @@ def test_interior_point_solves_the_same_either_way():
     from myriad.runtime.solvers.interior_point.problem import Layout
 
     system = load("van_der_pol")
-    nlp = transcribe(system, SingleShooting(controls=40, integrator=Heun()))
+    nlp = transcribe(system, SingleShooting(intervals=40, integrator=Heun()))
     data = default_data(system)
     z0 = jnp.asarray(nlp.initial_guess(data))
     staged = ScaledProblem.from_nlp(nlp)
@@ -127,7 +128,7 @@ def test_interior_point_solves_the_same_either_way():
     assert int(out[0].iterations) == int(out[1].iterations)
     np.testing.assert_allclose(out[0].objective, out[1].objective, rtol=1e-10)
     np.testing.assert_allclose(out[0].z, out[1].z, rtol=1e-6, atol=1e-8)
-    sol = solve(system, SingleShooting(controls=40, integrator=Heun()), InteriorPoint())
+    sol = solve(system, SingleShooting(intervals=40, integrator=Heun()), InteriorPoint())
     assert sol.converged
 
 
@@ -142,7 +143,7 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
     from myriad.runtime.solvers.sparse import hvp_batch_fn
 
     system = load("hiv_treatment")
-    nlp = transcribe(system, SingleShooting(controls=30, integrator=Heun()))
+    nlp = transcribe(system, SingleShooting(intervals=30, integrator=Heun()))
     problem = ScaledProblem.from_nlp(nlp)
     data = default_data(system)
     w, lam = _point(nlp, 4)

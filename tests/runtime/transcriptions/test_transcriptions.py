@@ -39,7 +39,7 @@ from .._problems import BoundedReach, DoubleIntegrator, NoUStar, ScalarLQ
 @pytest.mark.parametrize(
     "make, problem, ns, order",
     [
-        (lambda n: SingleShooting(controls=n), DoubleIntegrator, (8, 16, 32), 2),
+        (lambda n: SingleShooting(intervals=n), DoubleIntegrator, (8, 16, 32), 2),
         (lambda n: MultipleShooting(intervals=n // 4, steps_per_interval=4), ScalarLQ, (16, 32, 64), 3),
         (lambda n: Trapezoidal(intervals=n), ScalarLQ, (8, 16, 32), 3),
         (lambda n: HermiteSimpson(intervals=n), ScalarLQ, (4, 8, 16), 5),
@@ -76,7 +76,7 @@ def test_exact_discretisations_have_zero_defects():
 # solved with every transcription except where another test already does it (Trapezoidal and Hermite-Simpson solve
 # ScalarLQ in the order test); a solve costs about a second of compilation on two shared cores.
 _METHODS = {
-    "single_shooting": (SingleShooting(controls=32), 1e-2),
+    "single_shooting": (SingleShooting(intervals=32), 1e-2),
     "multiple_shooting": (MultipleShooting(intervals=4, steps_per_interval=4), 1e-6),
     "trapezoidal": (Trapezoidal(intervals=32), 1e-2),
     "hermite_simpson": (HermiteSimpson(intervals=8), 1e-6),
@@ -129,7 +129,7 @@ def test_cost_converges_at_method_order(make, ns, order):
 def test_single_shooting_cost_is_simulated_heun_cost():
     system = BoundedReach()
     data = default_data(system)
-    tr = SingleShooting(controls=10)
+    tr = SingleShooting(intervals=10)
     nlp = tr.transcribe(system)
     u = np.linspace(-1.0, 2.0, 11)[:, None]
     z = jnp.asarray(u.ravel())
@@ -139,7 +139,7 @@ def test_single_shooting_cost_is_simulated_heun_cost():
     # One bound row, on the final state, scaled by the nominal magnitude 0.5.
     np.testing.assert_allclose(np.asarray(c), np.asarray(sim.states[-1]) / 0.5, rtol=1e-14)
     assert (nlp.c_lower[0], nlp.c_upper[0]) == (-np.inf, 1.0)
-    assert SingleShooting(controls=10, enforce_final_state_bounds=False).transcribe(system).constraints is None
+    assert SingleShooting(intervals=10, enforce_final_state_bounds=False).transcribe(system).constraints is None
 
 
 def test_no_bound_row_for_a_state_with_a_required_final_value():
@@ -149,7 +149,7 @@ def test_no_bound_row_for_a_state_with_a_required_final_value():
         x_lower = (0.0, -10.0)
         x_upper = (1.0, 10.0)
 
-    nlp = SingleShooting(controls=4).transcribe(Pinned())
+    nlp = SingleShooting(intervals=4).transcribe(Pinned())
     # rows: p(T) - 1, v(T) - 0 (required), and no bound rows: both states are pinned.
     assert nlp.n_constraints == 2
     np.testing.assert_array_equal(nlp.c_lower, [0.0, 0.0])
@@ -200,7 +200,7 @@ def test_initial_guess_interpolates_to_required_final_values():
 @pytest.mark.parametrize("method", list(TRANSCRIPTIONS))
 def test_new_params_do_not_recompile(method):
     system = ScalarLQ()
-    nlp = TRANSCRIPTIONS[method](**{"controls" if method == "single_shooting" else "intervals": 4}).transcribe(system)
+    nlp = TRANSCRIPTIONS[method](intervals=4).transcribe(system)
     traces = []
 
     def fun(z, data):

@@ -5,7 +5,7 @@ the folder instead of running XLA again. The folder is ``$MYRIAD_JAX_CACHE`` if 
 it is safe to delete at any time (the next compilation refills it). ``MYRIAD_JAX_CACHE=off`` (or ``none``, ``0``, an
 empty value) turns it off, as ``myriad --no-cache`` does.
 
-Its subfolder ``programs/`` holds the traced programs themselves (:mod:`myriad.runtime.programs`), so that a second
+Its subfolder ``programs/`` holds the traced programs themselves (:mod:`.programs`), so that a second
 process skips Python tracing too, which was most of a second ``myriad bench --published-only`` (23 s -> 8-10 s).
 """
 
@@ -15,14 +15,14 @@ import os
 
 from . import programs
 
-__all__ = ["DEFAULT_CACHE_DIR", "ENV_VAR", "cache_dir", "enable_compilation_cache"]
+__all__ = ["DEFAULT_CACHE_DIR", "ENV_VAR", "compilation_cache_dir", "enable_compilation_cache"]
 
 DEFAULT_CACHE_DIR = "~/.cache/myriad/jax"
 ENV_VAR = "MYRIAD_JAX_CACHE"
 _OFF = ("", "0", "off", "none", "false", "no")
 
 
-def cache_dir(requested: str | None = None) -> str | None:
+def compilation_cache_dir(requested: str | None = None) -> str | None:
     """The folder to use: ``requested`` if given, else ``$MYRIAD_JAX_CACHE``, else the default; None when turned off."""
     if requested is None:
         requested = os.environ.get(ENV_VAR, DEFAULT_CACHE_DIR)
@@ -32,7 +32,7 @@ def cache_dir(requested: str | None = None) -> str | None:
 
 
 def enable_compilation_cache(requested: str | None = None) -> str | None:
-    """Point JAX's persistent compilation cache at :func:`cache_dir` unless this process already has one.
+    """Point JAX's persistent compilation cache at :func:`compilation_cache_dir` unless this process already has one.
 
     JAX reads the setting once, at its first compilation, so a folder already chosen (``JAX_COMPILATION_CACHE_DIR``,
     or an earlier call) is kept and returned. The minimum compile time for an entry is lowered from 1 s to 0 so that
@@ -53,7 +53,7 @@ def enable_compilation_cache(requested: str | None = None) -> str | None:
         if programs.program_folder() is None:
             programs.set_program_folder(os.path.join(current, "programs"))
         return current
-    path = cache_dir(requested)
+    path = compilation_cache_dir(requested)
     if path is None:
         return None
     os.makedirs(path, exist_ok=True)

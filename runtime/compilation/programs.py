@@ -1,6 +1,6 @@
 """Traced programs kept on disk (``jax.export``), so that a second process skips Python tracing as well as XLA.
 
-JAX's persistent compilation cache (:mod:`.cache`) saves XLA's work, but its key is the lowered program, so every
+JAX's persistent compilation cache (:mod:`.jax_cache`) saves XLA's work, but its key is the lowered program, so every
 process still traces and lowers each program first. For a table of 18 solves that tracing was most of a second run
 (the ``myriad bench --published-only`` profile: ~80 % of 23 s in ``trace_to_jaxpr`` and lowering, 1.6 s reading
 executables back). This store keeps each traced program as a serialised :class:`jax.export.Exported`; a later process
@@ -15,7 +15,7 @@ libraries traced through, the float width and the device: a change to any of the
 that cannot be exported (a host callback, an unregistered pytree) is lowered the usual way and not stored.
 
 The store lives in ``<compilation cache folder>/programs`` and is turned on and off with the compilation cache
-(:func:`myriad.runtime.cache.enable_compilation_cache`); files are written atomically and safe to delete.
+(:func:`.jax_cache.enable_compilation_cache`); files are written atomically and safe to delete.
 """
 
 from __future__ import annotations
@@ -32,10 +32,10 @@ from typing import Any, Callable
 import jax
 import numpy as np
 
-from .atomic import atomic_write_bytes
+from ..atomic import atomic_write_bytes
 
-__all__ = ["QUICK", "compiler_options", "describe", "lower", "program_folder", "set_compiler_options",
-           "set_program_folder", "system_key"]
+__all__ = ["QUICK", "compiler_options", "describe", "lower", "program_folder", "register_namedtuple",
+           "set_compiler_options", "set_program_folder", "system_key"]
 
 log = logging.getLogger(__name__)
 _FOLDER: Path | None = None
@@ -146,17 +146,30 @@ def _signature_text(args: tuple) -> str:
     return f"{treedef}|{shapes}"
 
 
-@functools.lru_cache(maxsize=1)
-def _register_pytrees() -> None:
-    """The NamedTuples that cross a stored program's boundary, under stable names (export needs them registered)."""
+# NamedTuples that cross a stored program's boundary: jax.export must know them by a stable name. Each type registers
+# itself where it is defined (register_namedtuple), so this module names none of them (no import of solvers or
+# core types from the infrastructure); they are handed to jax.export on the next lower(), once each.
+_PENDING: list[type] = []
+_REGISTERED: set[str] = set()
+
+
+def register_namedtuple(cls: type) -> type:
+    """Let ``cls`` (a NamedTuple) cross a stored program's boundary, under the name ``myriad.<qualname>``.
+
+    Call it where the type is defined (usable as a class decorator); returns ``cls``."""
+    _PENDING.append(cls)
+    return cls
+
+
+def _register_pending() -> None:
     from jax import export
 
-    from .data import ProblemData
-    from .simulate import Simulation
-    from .solvers.interior_point.loop import InteriorPointSolution, WarmStart
-
-    for cls in (ProblemData, Simulation, InteriorPointSolution, WarmStart):
-        export.register_namedtuple_serialization(cls, serialized_name=f"myriad.{cls.__qualname__}")
+    while _PENDING:
+        cls = _PENDING.pop()
+        name = f"myriad.{cls.__qualname__}"
+        if name not in _REGISTERED:  # a module imported twice (a reload) defines the type again: the first one stays
+            export.register_namedtuple_serialization(cls, serialized_name=name)
+            _REGISTERED.add(name)
 
 
 def lower(jitted: Callable, key: str | None, args: tuple) -> Any:
@@ -166,7 +179,7 @@ def lower(jitted: Callable, key: str | None, args: tuple) -> Any:
     from jax import export
 
     try:
-        _register_pytrees()
+        _register_pending()
         name = hashlib.sha256(f"{key}|{_signature_text(args)}|{_code_fingerprint()}".encode()).hexdigest()
         path = _FOLDER / f"{name[:40]}.jaxexport"
         exported = None
