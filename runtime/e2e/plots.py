@@ -8,7 +8,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..plotting import finish_loss_figure, pyplot, save_png
+from ..learn import plots as learn_plots
+from ..plotting import pyplot, save_png
 
 __all__ = ["plot_training", "plot_loss"]
 
@@ -45,12 +46,7 @@ def plot_training(system: Any, times: Any, snapshots: Sequence[tuple[int, Any, A
 
 
 def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
-    """The imitation loss (and the planner's KKT residual) against the iteration, log scale."""
-    plt = pyplot()
-    h = np.asarray(history, dtype=float).reshape(-1, 3)
-    fig, ax = plt.subplots(figsize=(6.4, 3.6))
-    ax.semilogy(h[:, 0], np.maximum(h[:, 1], 1e-300), label="imitation loss", color="C0")
-    if np.any(h[:, 2] > 0):
-        ax.semilogy(h[:, 0], np.maximum(h[:, 2], 1e-300), label="planner KKT residual", color="C1", alpha=0.6)
-    ax.set_xlabel("iteration")
-    return finish_loss_figure(fig, ax, title, path)
+    """The imitation loss (and the planner's KKT residual, where there is one) against the iteration: the kit's loss
+    curve with end-to-end learning's labels (an exact 0 drawn at 1e-300, the residual lighter)."""
+    return learn_plots.plot_loss(history, path, title, labels=("imitation loss", "planner KKT residual"),
+                                 xlabel="iteration", ylabel=None, floor=1e-300, second_alpha=0.6)

@@ -14,7 +14,7 @@ fix it (measured in docs/notes/node-training.md, "L-BFGS polish and plan anchors
 The objective is ``loss(train, window) + anchor_weight * loss(anchors, full horizon)`` with the losses of
 :mod:`.losses` (range-scaled by default); the whole run is one ``jax.jit``-compiled ``lax.while_loop``, cached on its
 static configuration, so later rounds of the same shapes compile nothing. The polished parameters are returned only
-when the objective and the parameters are finite; otherwise the starting ones, with ``status="non_finite"``.
+when the objective and the parameters are finite; otherwise the starting ones, with ``status=Stop.NON_FINITE``.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import numpy as np
 import optax
 import optax.tree_utils as otu
 
+from ..learn.loop import Stop
 from .fit import _int
 from .losses import SCALES, fit_integrator, layout, state_scale, window_losses
 
@@ -74,8 +75,8 @@ class PolishConfig:
 @dataclasses.dataclass(frozen=True)
 class PolishResult:
     """The outcome of :func:`polish`: ``(before, after)`` pairs of the objective, the full-horizon validation loss
-    and the anchors' loss (NaN without anchors); ``status`` is ``"converged"`` (finite, returned) or
-    ``"non_finite"`` (the start returned)."""
+    and the anchors' loss (NaN without anchors); ``status`` is ``Stop.CONVERGED`` (finite, returned) or
+    ``Stop.NON_FINITE`` (the start returned)."""
 
     theta: Any
     objective: tuple[float, float]
@@ -83,14 +84,14 @@ class PolishResult:
     anchor_loss: tuple[float, float]
     iterations: int
     seconds: float
-    status: str
+    status: Stop
     message: str
 
     def record(self) -> dict[str, Any]:
         num = lambda v: v if math.isfinite(v) else None  # noqa: E731
         return {"objective": [num(v) for v in self.objective], "validation": [num(v) for v in self.validation],
                 "anchor_loss": [num(v) for v in self.anchor_loss], "iterations": self.iterations,
-                "seconds": round(self.seconds, 3), "status": self.status}
+                "seconds": round(self.seconds, 3), "status": str(self.status)}
 
 
 def _losses(model, integrator, n_steps, window, train, frozen, spec, inv, t0, h, x, u, xa, ua, xv, uv, weight):
@@ -174,7 +175,7 @@ def polish(model: Any, dataset: Any, theta: Any, config: PolishConfig = PolishCo
     if xa.shape[0] == 0:
         before, after = (*before[:2], math.nan), (*after[:2], math.nan)
     finite = math.isfinite(after[0]) and all(bool(jnp.all(jnp.isfinite(a))) for a in jax.tree.leaves(params))
-    status = "converged" if finite else "non_finite"
+    status = Stop.CONVERGED if finite else Stop.NON_FINITE
     message = (f"L-BFGS, {int(count)} iterations: objective {before[0]:.3e} -> {after[0]:.3e}, validation "
                f"{before[1]:.3e} -> {after[1]:.3e}" if finite else
                f"L-BFGS reached a non-finite objective or parameters after {int(count)} iterations; the starting "

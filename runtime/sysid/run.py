@@ -235,7 +235,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
                 polished = polish(model, dataset, theta, config.polish, anchors=anchors)
                 theta = polished.theta
                 polishes.append(polished)
-                if polished.status != "converged":
+                if polished.status is not Stop.CONVERGED:
                     message += f"; round {r}: {polished.message}"
         seconds += time.perf_counter() - t0
         evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum)

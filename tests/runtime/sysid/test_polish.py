@@ -9,6 +9,7 @@ import pytest
 
 from myriad.runtime import load
 from myriad.runtime.learn.dataset import Sampling, make_dataset
+from myriad.runtime.learn.loop import Stop
 from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid import polish as polish_module
 from myriad.runtime.sysid.fit import FitConfig, fit
@@ -47,7 +48,7 @@ def test_polish_recovers_parametric_truth_from_the_guesses(system, data):
     model = Parametric(system)
     res = polish(model, data, model.init_params(jax.random.PRNGKey(0), data.train),
                  PolishConfig(iterations=200, window=None))
-    assert res.status == "converged" and res.objective[1] < 1e-20 < res.objective[0]
+    assert res.status is Stop.CONVERGED and res.objective[1] < 1e-20 < res.objective[0]
     for k, v in model.true_params().items():
         assert abs(float(res.theta[k]) - float(v)) <= 1e-6 * abs(float(v)), k
 
@@ -59,7 +60,7 @@ def test_polish_lowers_an_adam_fit_and_compiles_once(node_fit, data):
     traces = polish_module.TRACES["polish"]
     again = polish(model, data, theta, config)
     assert polish_module.TRACES["polish"] == traces  # same shapes and settings: nothing recompiled
-    assert first.status == "converged" and first.iterations == 40
+    assert first.status is Stop.CONVERGED and first.iterations == 40
     assert first.objective[1] < 0.5 * first.objective[0] and math.isnan(first.anchor_loss[0])
     same = zip(jax.tree.leaves(first.theta), jax.tree.leaves(again.theta))
     assert all(np.array_equal(np.asarray(a), np.asarray(b)) for a, b in same)  # deterministic
