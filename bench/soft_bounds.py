@@ -21,7 +21,7 @@ from myriad.runtime import load, systems
 from myriad.runtime.solve import solve
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.transcriptions import SingleShooting
-from myriad.runtime.transcriptions._common import bounded_free_states
+from myriad.runtime.transcriptions.nlp_parts import bounded_free_states
 
 
 def main() -> None:

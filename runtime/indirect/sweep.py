@@ -16,7 +16,7 @@ from ..solution import Solution
 from ..solvers.pure import AbstractPureSolver
 from ..status import Status
 from ..system import OptimalControlUnavailable, System
-from ..transcriptions._common import guess_controls
+from ..transcriptions.nlp_parts import guess_controls
 from .newton import sweep_then_newton
 from .pontryagin import cost_and_trajectories, optimal_controls, problem, relative_change
 from .result import SweepCode, SweepResult, SweepState, message, outcome, to_solution

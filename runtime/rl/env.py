@@ -52,7 +52,8 @@ from ..data import ProblemData, default_data
 from ..integrators import INTEGRATORS, AbstractIntegrator, Heun
 from ..loader import load
 from ..system import System
-from ..transcriptions._common import bounded_free_states, final_value_rows, state_scale
+from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows
+from ..transcriptions.scaling import state_scale
 
 __all__ = ["EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
 

@@ -51,7 +51,8 @@ import numpy as np
 from ..data import ProblemData, check_structural_params
 from ..nlp import NLP
 from ..solvers import Ipopt
-from ..transcriptions._common import bounded_free_states, control_scale, final_value_rows, guess_controls, state_scale
+from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows, guess_controls
+from ..transcriptions.scaling import control_scale, state_scale
 from .env import Env, EnvState
 
 __all__ = ["MPC", "MPCEpisode", "mismatched_params"]

@@ -11,11 +11,11 @@ from ..indirect import INDIRECT as INDIRECT
 from ..indirect import ForwardBackwardSweep as ForwardBackwardSweep
 from ..indirect import SweepResult as SweepResult
 from ..indirect import SweepState as SweepState
-from ._common import control_scale as control_scale
-from ._common import state_scale as state_scale
 from .base import AbstractTranscription as AbstractTranscription
 from .hermite_simpson import HermiteSimpson as HermiteSimpson
 from .multiple_shooting import MultipleShooting as MultipleShooting
+from .scaling import control_scale as control_scale
+from .scaling import state_scale as state_scale
 from .single_shooting import SingleShooting as SingleShooting
 from .trapezoidal import Trapezoidal as Trapezoidal
 

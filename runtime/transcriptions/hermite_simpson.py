@@ -11,8 +11,9 @@ import numpy as np
 
 from ..nlp import NLP
 from ..system import System
-from ._common import (
-    control_scale,
+from .base import AbstractTranscription, sample_final_time
+from .grid import Grid, column, free_node_times, node_times, weighted_sum
+from .nlp_parts import (
     final_time_variable,
     final_value_rows,
     guess_controls,
@@ -21,10 +22,8 @@ from ._common import (
     path_bounds,
     path_rows,
     sparsity,
-    state_scale,
 )
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, column, free_node_times, node_times, weighted_sum
+from .scaling import control_scale, state_scale
 
 __all__ = ["HermiteSimpson"]
 

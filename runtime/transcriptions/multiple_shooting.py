@@ -12,8 +12,9 @@ import numpy as np
 from ..integrators import RK4, AbstractIntegrator, rollout, rollout_with_cost
 from ..nlp import NLP
 from ..system import System
-from ._common import (
-    control_scale,
+from .base import AbstractTranscription, sample_final_time
+from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .nlp_parts import (
     final_time_variable,
     final_value_rows,
     guess_controls,
@@ -22,10 +23,8 @@ from ._common import (
     path_bounds,
     path_rows,
     sparsity,
-    state_scale,
 )
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
+from .scaling import control_scale, state_scale
 
 __all__ = ["MultipleShooting"]
 

@@ -12,18 +12,17 @@ from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost, 
 from ..nlp import NLP
 from ..smallops import take
 from ..system import System
-from ._common import (
+from .base import AbstractTranscription, sample_final_time
+from .grid import Grid, free_node_times, node_times, rollout_on, rollout_with_cost_on
+from .nlp_parts import (
     bounded_free_states,
-    control_scale,
     final_time_variable,
     final_value_rows,
     guess_controls,
     path_bounds,
     path_rows,
-    state_scale,
 )
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, free_node_times, node_times, rollout_on, rollout_with_cost_on
+from .scaling import control_scale, state_scale
 from .staged import stage_derivatives as staged_stage_derivatives
 from .staged import staged_derivatives
 

@@ -18,7 +18,7 @@ from myriad.runtime.integrators import Adaptive
 from myriad.runtime.simulate import simulate
 from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.transcriptions import Trapezoidal, default_data
-from myriad.runtime.transcriptions._common import guess_controls
+from myriad.runtime.transcriptions.nlp_parts import guess_controls
 
 TRANSCRIPTION = Trapezoidal(intervals=50)
 

@@ -27,7 +27,7 @@ from myriad.runtime.transcriptions import (
     Trapezoidal,
     default_data,
 )
-from myriad.runtime.transcriptions._common import nominal_scale
+from myriad.runtime.transcriptions.scaling import nominal_scale
 
 from .._nlp import _slope, _solve
 from .._problems import BoundedReach, DoubleIntegrator, NoUStar, ScalarLQ
