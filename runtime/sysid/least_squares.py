@@ -193,6 +193,54 @@ def _direction(v: np.ndarray, names: tuple[str, ...], tol: float) -> str:
     return "(" + ", ".join(f"{x:+.3g} {k}" for k, x in zip(names, v) if abs(x) > tol) + ")"
 
 
+def _start_values(model, theta0: dict | None) -> dict[str, float]:
+    """The starting values by name, in the model's order: its guesses, overridden by ``theta0``'s."""
+    guess = model.init_params(jax.random.PRNGKey(0))
+    if not isinstance(guess, dict) or any(np.ndim(v) for v in guess.values()):
+        raise ValueError(f"least_squares: fits a Parametric model's scalar parameters, not a {type(model).__name__}")
+    theta_start = {k: float(v) for k, v in {**guess, **(theta0 or {})}.items()}
+    if set(theta_start) != set(guess):
+        raise ValueError(f"least_squares: {model.system.name} theta0 names {sorted(set(theta_start) - set(guess))} "
+                         f"are not the model's {list(guess)}")
+    return theta_start
+
+
+def _weights(system, x_obs: np.ndarray, s: np.ndarray, fit_starts: bool, drop_clipped: bool) -> np.ndarray:
+    """Each observation's residual weight: 1 / its state's scale; 0 for the starts unless they are fitted, and for
+    observations clipped at a finite bound when ``drop_clipped``."""
+    weights = np.broadcast_to(1.0 / s, x_obs.shape).copy()
+    if not fit_starts:
+        weights[:, 0] = 0.0
+    if drop_clipped:
+        a = system.arrays()
+        weights[(x_obs == a["x_lower"]) | (x_obs == a["x_upper"])] = 0.0
+    return weights
+
+
+def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: float, finite: bool, rcond: float,
+                null_tol: float) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], str]:
+    """``(covariance of the parameters, singular values of J, unidentifiable names, a note for the message)``: the
+    Gauss-Newton covariance on J's range; NaN rows and columns for a parameter with a component in its null space."""
+    n_par, n_all = len(names), jac.shape[1]
+    sv, vt, keep = np.full(n_all, math.nan), np.zeros((n_all, n_all)), np.zeros(n_all, dtype=bool)
+    if finite:
+        _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+        keep = sv > rcond * np.max(sv)
+    v_null = vt[~keep, :n_par].T if finite else np.zeros((n_par, 0))  # the parameters' part of the null directions
+    bad = np.linalg.norm(v_null, axis=1) > null_tol
+    v = vt[keep, :n_par]
+    cov = c[:, None] * ((v.T / sv[keep] ** 2) @ v * sigma2) * c[None, :]
+    cov[bad | (not finite), :] = math.nan
+    cov[:, bad | (not finite)] = math.nan
+    unidentifiable, note = tuple(k for k, b in zip(names, bad) if b), ""
+    if unidentifiable:
+        dirs = "; ".join(_direction(c * col, names, null_tol) for col in v_null.T if np.any(np.abs(col) > null_tol))
+        note = (f"; the data cannot identify: {', '.join(unidentifiable)} (the residuals do not change along "
+                f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {rcond:g} x "
+                f"{np.max(sv):.2e}); their standard errors are NaN")
+    return cov, sv, unidentifiable, note
+
+
 def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "single_shooting",
                   window: int | None = None, fit_starts: bool | None = None, use_validation: bool = False,
                   drop_clipped: bool | None = None, rtol: float = 1e-12, atol: float = 1e-12, max_steps: int = 200,
@@ -221,14 +269,8 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     """
     start = time.perf_counter()
     system = model.system
-    guess = model.init_params(jax.random.PRNGKey(0))
-    if not isinstance(guess, dict) or any(np.ndim(v) for v in guess.values()):
-        raise ValueError(f"least_squares: fits a Parametric model's scalar parameters, not a {type(model).__name__}")
-    theta_start = {k: float(v) for k, v in {**guess, **(theta0 or {})}.items()}
-    if set(theta_start) != set(guess):
-        raise ValueError(f"least_squares: {system.name} theta0 names {sorted(set(theta_start) - set(guess))} are not "
-                         f"the model's {list(guess)}")
-    names = tuple(guess)
+    theta_start = _start_values(model, theta0)
+    names = tuple(theta_start)
     n_steps = int(np.shape(dataset.times)[0]) - 1
     window = max(1, n_steps // 10) if method == "multiple_shooting" and window is None else window
     sampling = getattr(dataset, "sampling", None)
@@ -241,12 +283,7 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     u_obs = np.concatenate([np.asarray(t.controls, dtype=np.float64) for t in parts])
     integrator: AbstractIntegrator = getattr(sampling, "integrator", None) or Heun()
     s = _state_scale(system, x_obs, scale)
-    weights = np.broadcast_to(1.0 / s, x_obs.shape).copy()
-    if not fit_starts:
-        weights[:, 0] = 0.0
-    if drop_clipped:
-        a = system.arrays()
-        weights[(x_obs == a["x_lower"]) | (x_obs == a["x_upper"])] = 0.0
+    weights = _weights(system, x_obs, s, fit_starts, drop_clipped)
     g = np.array([theta_start[k] for k in names], dtype=np.float64)
     c = np.where(g != 0, g, 1.0)
     p0 = np.where(g != 0, 1.0, 0.0)
@@ -266,25 +303,11 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         message += (f"; the model's rollout at the starting parameters is not finite on trajectories "
                     f"{np.flatnonzero(~start_ok).tolist()}: start closer (theta0, e.g. from multiple shooting)")
 
-    n_obs, n_par, n_all = int(np.count_nonzero(weights)), len(names), p.size
-    dof, rss = n_obs - n_all, float(r @ r)
+    n_obs, n_par = int(np.count_nonzero(weights)), len(names)
+    dof, rss = n_obs - p.size, float(r @ r)
     sigma2 = rss / dof if dof > 0 else math.nan
-    sv, vt, keep = np.full(n_all, math.nan), np.zeros((n_all, n_all)), np.zeros(n_all, dtype=bool)
-    if finite:
-        _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-        keep = sv > rcond * np.max(sv)
-    v_null = vt[~keep, :n_par].T if finite else np.zeros((n_par, 0))  # the parameters' part of the null directions
-    bad = np.linalg.norm(v_null, axis=1) > null_tol
-    v = vt[keep, :n_par]
-    cov = c[:, None] * ((v.T / sv[keep] ** 2) @ v * sigma2) * c[None, :]
-    cov[bad | (not finite), :] = math.nan
-    cov[:, bad | (not finite)] = math.nan
-    unidentifiable = tuple(k for k, b in zip(names, bad) if b)
-    if unidentifiable:
-        dirs = "; ".join(_direction(c * col, names, null_tol) for col in v_null.T if np.any(np.abs(col) > null_tol))
-        message += (f"; the data cannot identify: {', '.join(unidentifiable)} (the residuals do not change along "
-                    f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {rcond:g} x "
-                    f"{np.max(sv):.2e}); their standard errors are NaN")
+    cov, sv, unidentifiable, note = _covariance(jac, c, names, sigma2, finite, rcond, null_tol)
+    message += note
     if finite and not noisy and status is Status.CONVERGED and rss > 1e-12 * n_obs:  # exact data, no fit
         status, message = Status.NOT_CONVERGED, message + (
             f"; stalled at RMS scaled residual {math.sqrt(rss / n_obs):.1e} on noise-free data (a local minimum; the "
