@@ -125,7 +125,8 @@ def _relink(markdown: str, base: Path, page_dir: Path, docs: Path) -> str:
             shown = path.relative_to(ROOT).as_posix()
         except ValueError:
             shown = target
-        return text if text.strip("`") == shown else f"{text} (`{shown}`)"
+        named = text.strip("`").rstrip("/")
+        return text if named and shown.startswith(named) else f"{text} (`{shown}`)"  # the text already names it
 
     return _LINK.sub(link, markdown)
 
