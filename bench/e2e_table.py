@@ -43,6 +43,7 @@ from myriad.runtime import load
 from myriad.runtime.data import ProblemData, default_data
 from myriad.runtime.e2e import E2EConfig, UnrolledPlanner, make_implicit_solve, run_e2e
 from myriad.runtime.learn.models import Parametric
+from myriad.runtime.solvers.adjoint import adjoint
 from myriad.runtime.solvers.interior_point import InteriorPoint
 from myriad.runtime.sysid.run import SysidConfig
 from myriad.runtime.transcriptions import SingleShooting
@@ -98,7 +99,7 @@ def learn_parametric(names, gradient: str, unroll: int | None, iterations: int) 
           f"K = {unroll or 'default'}, {iterations} iterations)")
     for name in names:
         t = time.perf_counter()
-        report = run_e2e(name, E2EConfig(gradient=gradient, unroll=unroll, iterations=iterations), progress=False)
+        report = run_e2e(name, E2EConfig(adjoint=adjoint(gradient, unroll), iterations=iterations), progress=False)
         seconds = time.perf_counter() - t
         rec = report.record()
         for i, (k, v) in enumerate(report.learned.items()):
@@ -165,9 +166,10 @@ def node_row(name: str, args) -> dict:
         init = args.init
         if init == "sysid" and args.sysid_rounds is not None:  # E2EConfig's own "sysid" is one round
             init = SysidConfig(model="node", hidden=tuple(width), seed=args.seed, rounds=args.sysid_rounds, reaim=0)
-        config = E2EConfig(model="node", unroll=args.unroll, optimizer=args.lr, reset_every=args.reset_every,
-                           init=init, hidden=tuple(width), seed=args.seed, implicit_solver=solver, loss=args.loss,
-                           reaim=args.reaim, **row_options(name, args))
+        options = row_options(name, args)
+        config = E2EConfig(model="node", adjoint=adjoint(options.pop("gradient"), args.unroll), optimizer=args.lr,
+                           reset_every=args.reset_every, init=init, hidden=tuple(width), seed=args.seed,
+                           implicit_solver=solver, loss=args.loss, reaim=args.reaim, **options)
         report = run_e2e(name, config, progress=False)
     except Exception as exc:  # noqa: BLE001 -- never lose the table
         return {"system": name, "error": f"{type(exc).__name__}: {exc}", "traceback": traceback.format_exc(),

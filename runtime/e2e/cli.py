@@ -71,17 +71,18 @@ def _implicit_solver(name: str):
 
 
 def run(args) -> int:
+    from ..solvers.adjoint import adjoint
     from .config import E2EConfig
 
     if error := first_error(args):
         return _usage(error)
     if args.intervals < 1:
         return _usage("--intervals must be at least 1")
-    options = {k: v for k, v in (("unroll", args.unroll), ("iterations", args.iterations),
+    options = {k: v for k, v in (("iterations", args.iterations),
                                  ("optimizer", args.lr), ("hidden", args.hidden), ("reaim", args.reaim))
                if v is not None}
     try:
-        config = E2EConfig(model=args.model, gradient=args.gradient, on_failure=args.on_failure,
+        config = E2EConfig(model=args.model, adjoint=adjoint(args.gradient, args.unroll), on_failure=args.on_failure,
                            learn_cost=tuple(args.learn_cost), seed=args.seed, reset_every=args.reset_every,
                            init=args.init, implicit_solver=_implicit_solver(args.implicit_solver),
                            soft_state_bounds=args.soft_state_bounds, **options)

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..learn.identity import describe
+from ..solvers.adjoint import Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
 
@@ -45,9 +46,12 @@ class E2EConfig:
 
     Attributes:
         model: ``"parametric"`` (the spec's learnable parameters, from their guesses) or ``"node"`` (a Neural ODE).
-        gradient: ``"unrolled"`` (reverse mode through ``unroll`` warm-started extragradient steps) or
-            ``"implicit"`` (the implicit function theorem at a converged extragradient solve).
-        unroll: K, the extragradient steps per iteration (default 10 parametric, 5 Neural ODE, as published).
+        adjoint: how the plan is differentiated (:mod:`myriad.runtime.solvers.adjoint`): ``Unrolled(K)``, reverse
+            mode through K warm-started extragradient steps, or ``Implicit()``, the implicit function theorem at a
+            converged solve (``Implicit(fallback_steps=K)``: K of the unrolled fallback, ``on_failure="unrolled"``);
+            K = None is 10 for a parametric model, 5 for a Neural ODE, as published. A name (``"unrolled"``,
+            ``"implicit"``) is read as that adjoint with the default K. ``gradient`` (its name) and ``unroll``
+            (its K) are read-only views.
         iterations: the most outer iterations (one optimiser update each).
         optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
             learned cost weights together).
@@ -92,8 +96,7 @@ class E2EConfig:
     """
 
     model: str = "parametric"
-    gradient: str = "unrolled"
-    unroll: int | None = None
+    adjoint: Unrolled | Implicit = Unrolled()
     iterations: int = 600
     optimizer: Any = 1e-2
     reset_every: int | None = 1000
@@ -114,15 +117,16 @@ class E2EConfig:
     soft_state_bounds: float | None = None
 
     def __post_init__(self):
-        for name, allowed in (("model", MODELS), ("gradient", GRADIENTS), ("loss", LOSSES),
-                              ("on_failure", ON_FAILURE)):
+        for name, allowed in (("model", MODELS), ("loss", LOSSES), ("on_failure", ON_FAILURE)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"E2EConfig({name}={getattr(self, name)!r}): expected one of {allowed}")
-        if self.unroll is None:
-            object.__setattr__(self, "unroll", 10 if self.model == "parametric" else 5)
+        adj = adjoint(self.adjoint)
+        if adj.unroll is None:
+            adj = adj.with_unroll(10 if self.model == "parametric" else 5)
+        object.__setattr__(self, "adjoint", adj)
         if self.reaim is None:
             object.__setattr__(self, "reaim", 0 if self.model == "parametric" else 6)
-        for name, low, optional in (("unroll", 1, False), ("iterations", 1, False), ("reset_every", 1, True),
+        for name, low, optional in (("iterations", 1, False), ("reset_every", 1, True),
                                     ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False),
                                     ("reaim", 0, False)):
             v = getattr(self, name)
@@ -156,6 +160,16 @@ class E2EConfig:
                 raise ValueError(f"E2EConfig: soft_state_bounds must be None or a finite factor > 0, got {soft!r}")
             object.__setattr__(self, "soft_state_bounds", float(soft))
         self._check_init()
+
+    @property
+    def gradient(self) -> str:
+        """The adjoint's name: ``"unrolled"`` or ``"implicit"``."""
+        return self.adjoint.name
+
+    @property
+    def unroll(self) -> int:
+        """K, the extragradient steps of an unrolled gradient (the adjoint's; the fallback's with ``Implicit``)."""
+        return self.adjoint.unroll
 
     def _check_init(self) -> None:
         from ..sysid.run import SysidConfig  # lazily: the sysid runner is only needed for init="sysid"

@@ -27,13 +27,14 @@ import optax
 
 from ..data import ProblemData
 from ..nlp import NLP
+from ..solvers.adjoint import Implicit
 from ..solvers.extragradient import optax_promotion
 from ..solvers.interior_point import InteriorPoint
 from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
 
-__all__ = ["MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
+__all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
 
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
@@ -45,6 +46,24 @@ SKIPPED, BACKTRACKED = USED.index("skipped"), USED.index("backtracked")
 BACKTRACK, RECOVER = 0.5, 1.25
 # Below this fraction of the optimiser's step the run stops: every nearby model is one the planner cannot solve.
 MIN_STEP_SCALE = 2.0**-20
+
+
+class Carry(NamedTuple):
+    """What one iteration hands the next, one type whatever the adjoint (a field the adjoint does not use is None).
+
+    Attributes:
+        plan: unrolled: the planner's warm state (:class:`~.planner.PlannerState`).
+        z: implicit: where the next solve starts; warm: with the interior point, its primal-dual warm start.
+        good, has_good: implicit: the last ``(train, opt_state)`` whose plan converged, and whether there is one.
+        scale: the fraction of the optimiser's step the next update takes (1 unless backtracking cut it).
+    """
+
+    plan: Any = None
+    z: Any = None
+    warm: Any = None
+    good: Any = None
+    has_good: Any = None
+    scale: Any = None
 
 
 class Metrics(NamedTuple):
@@ -73,10 +92,11 @@ class Program:
     def __init__(self, model: Any, nlp: NLP, config: E2EConfig, expert_controls: Any, expert_states: Any):
         self.model, self.nlp, self.config = model, nlp, config
         self.planner = UnrolledPlanner(nlp, config.planner)
-        self.isolve = make_implicit_solve(nlp, config.implicit_solver) if config.gradient == "implicit" else None
+        self.implicit = isinstance(config.adjoint, Implicit)
+        self.isolve = make_implicit_solve(nlp, config.implicit_solver) if self.implicit else None
         # The interior point restarts from the last solve's point *and* multipliers (a primal-dual warm start): from
         # the point alone it re-centres from mu = 0.1, often slower than from the initial guess.
-        ip = config.gradient == "implicit" and isinstance(config.implicit_solver, InteriorPoint)
+        ip = self.implicit and isinstance(config.implicit_solver, InteriorPoint)
         self.cold = config.implicit_solver.cold_start(nlp) if ip else None
         opt = config.optimizer
         self.optimizer = optax.adam(opt) if isinstance(opt, float) else opt
@@ -104,23 +124,23 @@ class Program:
         with optax_promotion():
             return self.optimizer.init(train)
 
-    def init_carry(self, train: Any, frozen: Any, consts: Any) -> Any:
+    def init_carry(self, train: Any, frozen: Any, consts: Any) -> Carry:
         """The planner's starting state (unrolled), or (implicit) the starting point with what backtracking needs:
         the last parameters and optimiser state whose plan converged, and the step's scale."""
         data = self.data(train, frozen, consts)
-        if self.config.gradient == "implicit":
+        one = jnp.asarray(1.0, jnp.float64)
+        if self.implicit:
             z = jnp.asarray(self.nlp.initial_guess(data))
-            return {"z": z, "warm": None if self.cold is None else self.cold(data, z),
-                    "good": (train, self.init_opt(train)), "has_good": jnp.asarray(False),
-                    "scale": jnp.asarray(1.0, jnp.float64)}
-        return self.planner.reset(data)
+            return Carry(z=z, warm=None if self.cold is None else self.cold(data, z),
+                         good=(train, self.init_opt(train)), has_good=jnp.asarray(False), scale=one)
+        return Carry(plan=self.planner.reset(data), scale=one)
 
     # ---- the gradients ---------------------------------------------------------------------------------------
 
     def _unrolled(self, train, frozen, consts, state):
         def objective(tr):
             data = self.data(tr, frozen, consts)
-            new = self.planner.run(state, data, self.config.unroll)
+            new = self.planner.run(state, data, self.config.adjoint.unroll)
             value, plan = self.loss(self.planner.z(new), data, consts["loss"])
             return value, (new, plan)
 
@@ -157,19 +177,20 @@ class Program:
         TRACES["iteration"] += 1
         scale = jnp.asarray(1.0, jnp.float64)
         data = jax.lax.stop_gradient(self.data(train, frozen, consts))
-        if self.config.gradient == "implicit":
+        if self.implicit:
             start = jnp.asarray(self.nlp.initial_guess(data))
-            z0 = jnp.where(reset, start, carry["z"])
+            z0 = jnp.where(reset, start, carry.z)
             warm = None
             if self.cold is not None:  # a cond, not a select: the cold start costs a model evaluation
-                warm = jax.lax.cond(reset, lambda: self.cold(data, start), lambda: carry["warm"])
+                warm = jax.lax.cond(reset, lambda: self.cold(data, start), lambda: carry.warm)
             value, grad, z_next, plan, sol, ok, used = self._implicit(train, frozen, consts, z0, warm)
-            kkt, converged, iterations, scale = sol.violation, sol.converged, sol.iterations, carry["scale"]
+            kkt, converged, iterations, scale = sol.violation, sol.converged, sol.iterations, carry.scale
         else:
-            carry = jax.lax.cond(reset, lambda: self.planner.reset(data), lambda: carry)
-            value, grad, carry, plan = self._unrolled(train, frozen, consts, carry)
-            kkt, converged, ok, used = self.planner.kkt(carry), jnp.asarray(True), jnp.asarray(True), 0
-            iterations = jnp.asarray(self.config.unroll)
+            state = jax.lax.cond(reset, lambda: self.planner.reset(data), lambda: carry.plan)
+            value, grad, state, plan = self._unrolled(train, frozen, consts, state)
+            carry = carry._replace(plan=state)
+            kkt, converged, ok, used = self.planner.kkt(state), jnp.asarray(True), jnp.asarray(True), 0
+            iterations = jnp.asarray(self.config.adjoint.unroll)
         # A gradient the implicit mode refused (a solve that did not converge) is a skip, not a failure: the run
         # stops only at a non-finite loss, or a non-finite gradient that would have been used.
         finite = jnp.isfinite(value) & (~ok | _all_finite(grad))
@@ -180,18 +201,18 @@ class Program:
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(apply, a, b), new, old)  # noqa: E731
         norm = optax.tree.norm(grad)
         next_train, next_opt = keep(new_train, train), keep(new_opt, opt_state)
-        if self.config.gradient == "implicit":
-            back = (used == BACKTRACKED) & carry["has_good"]  # a failed solve with somewhere to go back to
+        if self.implicit:
+            back = (used == BACKTRACKED) & carry.has_good  # a failed solve with somewhere to go back to
             finite = finite | back  # a non-finite plan there is what backtracking is for, not a reason to stop
             used = jnp.where(used == BACKTRACKED, jnp.where(back, BACKTRACKED, SKIPPED), used)
             pick = lambda when, a, b: jax.tree.map(lambda x, y: jnp.where(when, x, y), a, b)  # noqa: E731
-            next_train, next_opt = pick(back, carry["good"], (next_train, next_opt))
+            next_train, next_opt = pick(back, carry.good, (next_train, next_opt))
             # The next warm start: this solve's end if it converged, else the start it was given.
             warm_next = None if warm is None else pick(sol.converged, sol.warm, warm)
-            carry = {"z": z_next, "warm": warm_next, "good": pick(apply, (train, opt_state), carry["good"]),
-                     "has_good": carry["has_good"] | apply,
-                     "scale": jnp.where(apply, jnp.minimum(1.0, RECOVER * scale), jnp.where(back, BACKTRACK * scale,
-                                                                                            scale))}
+            carry = Carry(z=z_next, warm=warm_next, good=pick(apply, (train, opt_state), carry.good),
+                          has_good=carry.has_good | apply,
+                          scale=jnp.where(apply, jnp.minimum(1.0, RECOVER * scale), jnp.where(back, BACKTRACK * scale,
+                                                                                              scale)))
         metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == BACKTRACKED), used, SKIPPED),
                           iterations, scale, finite, *plan)
         return next_train, next_opt, carry, metrics

@@ -272,7 +272,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         if path is not None and (it + 1) % every == 0:
             save(it + 1)
         it += 1
-        if config.gradient == "implicit" and float(carry["scale"]) < MIN_STEP_SCALE:
+        if float(carry.scale) < MIN_STEP_SCALE:  # only backtracking (implicit) cuts the step
             status = "stalled"
             message = (f"iteration {it - 1}: the model's planning problem could not be solved after any step down to "
                        f"{MIN_STEP_SCALE:g} of the optimiser's (backtracking); stopped with the last parameters "

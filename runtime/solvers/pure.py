@@ -12,12 +12,14 @@ iteration apart (:meth:`batch_stepper`), with a chunk's worth of members in flig
 refilled (:func:`~.stepper.queued`).
 This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
 
-Differentiation today. The solves here are ``lax.while_loop`` iterations. Forward mode (``jax.jvp``) goes through
-the loop; reverse mode does not: ``jax.grad`` of a function of a pure solve raises JAX's ``ValueError`` ("Reverse-mode
-differentiation does not work for lax.while_loop ..."), never a silent zero
-(``tests/runtime/solvers/test_pure_solvers.py`` checks it). Gradients of a solution with respect to ``data`` need an
-implicit-function rule (a ``custom_vjp`` on the optimality conditions) or unrolling a fixed number of steps; neither
-is provided yet.
+Differentiation. The solves here are ``lax.while_loop`` iterations (the NLP solvers': over a stepper,
+:mod:`.stepper`). Forward mode (``jax.jvp``) goes through the loop; reverse mode does not: ``jax.grad`` of a function
+of the extragradient's pure solve raises JAX's ``ValueError`` ("Reverse-mode differentiation does not work for
+lax.while_loop ..."), never a silent zero (``tests/runtime/solvers/test_pure_solvers.py`` checks it). Reverse mode in
+``data`` comes from the one implicit-function rule on the KKT conditions (:mod:`.implicit`): the interior point's
+pure solve carries it, and an NLP solver's ``differentiable_solve`` is its pure solve with it. Unrolling is a
+``lax.scan`` of the extragradient stepper's ``iterate`` (:class:`~myriad.runtime.e2e.planner.UnrolledPlanner`); a
+learner picks one by an adjoint object (:mod:`.adjoint`: ``Implicit()``, ``Unrolled(steps)``).
 """
 
 from __future__ import annotations

@@ -102,10 +102,10 @@ class ExtragradientStepper:
     """The extragradient solve of one scaled problem and configuration, its iteration apart (built once per pair).
 
     :meth:`begin`, :meth:`step`, :meth:`running` and :meth:`end` are a :class:`~..stepper.Stepper`
-    (:attr:`stepper`): the pure solve is its ``while_loop`` (:meth:`solve`) and a batch queue drives the same
-    methods. :meth:`iterate` is one iteration whatever the state (the unrolled planner's fixed number of steps runs
-    past convergence); :meth:`refresh` re-evaluates a carried state's point for new data. Nothing is jitted and no
-    index is traced: all sizes are static.
+    (:attr:`stepper`, which a batch queue drives); :meth:`iterate` is one iteration whatever the state (the unrolled
+    planner's fixed number of steps runs past convergence), and the pure solve (:meth:`solve`) is the ``while_loop``
+    of :meth:`iterate` while :meth:`running`. :meth:`refresh` re-evaluates a carried state's point for new data.
+    Nothing is jitted and no index is traced: all sizes are static.
     """
 
     def __init__(self, problem: ScaledProblem, solver: Extragradient):
@@ -123,6 +123,9 @@ class ExtragradientStepper:
                                      problem.c_lower, problem.c_upper, self.box, self.penalty)
         self.primal, self.dual = step_rules(solver.step, solver.dual_step)
         self.stepper = Stepper(self.begin, self.step, self.running, self.end)
+        # NOTE: the loop steps with `iterate`, not `step`: it never steps a stopped state, and the select in `step`
+        # changed XLA's fusion of the loop body and the last bits of the iterates (measured on Van der Pol).
+        self._loop = Stepper(self.begin, self.iterate, self.running, self.end)
 
     def begin(self, data: Any, z0: Any) -> ExtragradientState:
         """The state at ``z0``: duals 0, fresh optimiser states, the scales measured there."""
@@ -170,8 +173,8 @@ class ExtragradientStepper:
         return ExtragradientState(p, duals, state_p, state_d, rho, v_ref, st.k + 1, scales, point)
 
     def step(self, data: Any, st: ExtragradientState) -> ExtragradientState:
-        """:meth:`iterate` while :meth:`running`; a stopped state stays as it is (the :class:`Stepper` contract).
-        Inside the solve's loop the state is always running, and the select returns the iterate bit for bit."""
+        """:meth:`iterate` while :meth:`running`; a stopped state stays as it is (the :class:`Stepper` contract, which
+        a batch queue relies on)."""
         go = self.running(st)
         return jax.tree.map(lambda new, old: jnp.where(go, new, old), self.iterate(data, st), st)
 
@@ -191,8 +194,8 @@ class ExtragradientStepper:
         )
 
     def solve(self, data: Any, z0: Any) -> ExtragradientSolution:
-        """The pure solve ``(data, z0) -> ExtragradientSolution``: one ``lax.while_loop`` of :meth:`step`."""
-        return self.stepper.solve(data, z0)
+        """The pure solve ``(data, z0) -> ExtragradientSolution``: one ``lax.while_loop`` of :meth:`iterate`."""
+        return self._loop.solve(data, z0)
 
     def refresh(self, data: Any, st: ExtragradientState) -> ExtragradientState:
         """``st`` with its point re-evaluated for ``data`` (a warm state carried over from other data)."""

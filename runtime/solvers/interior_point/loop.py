@@ -59,7 +59,7 @@ from .rules import (
     fraction_to_boundary,
 )
 
-__all__ = ["InteriorPointSolution", "WarmStart", "make_solve_fn"]
+__all__ = ["InteriorPointSolution", "InteriorPointStepper", "WarmStart", "make_solve_fn"]
 
 RUNNING = -1
 MU_INIT = 0.1
@@ -146,46 +146,99 @@ class _State(NamedTuple):
     fresh: jax.Array  # measure the scaling at the first iteration (a cold start)
 
 
+class _Direction(NamedTuple):
+    """A main iteration's barrier parameter, Newton step and its fraction-to-the-boundary limits."""
+
+    mu: jax.Array
+    factors: Any
+    delta_w: jax.Array
+    inertia_ok: jax.Array
+    r1: jax.Array
+    dx: jax.Array
+    dlam: jax.Array
+    dzl: jax.Array
+    dzu: jax.Array
+    tau: jax.Array
+    alpha_max: jax.Array
+    alpha_z: jax.Array
+    slope: jax.Array  # the barrier objective's directional derivative along dx
+
+
+class _Filter(NamedTuple):
+    """The filter line search's reference at the current point (Wächter & Biegler 2006, sec. 2.3)."""
+
+    theta: jax.Array  # ||g||_1
+    phi0: jax.Array  # the barrier objective
+    theta_min: jax.Array
+    theta_max: jax.Array
+    reset: jax.Array  # mu changed: the filter is emptied
+    f_theta: jax.Array
+    f_phi: jax.Array
+    a_min: jax.Array
+    tiny: jax.Array  # the step is negligible against x
+
+
 def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
                   second_order_correction: bool = True) -> tuple[Callable[[Any, Any], InteriorPointSolution],
                                                                  Callable[[Any, Any], WarmStart], Stepper]:
-    """``(solve, cold, stepper)``: the pure solve ``(data, start) -> InteriorPointSolution``, where ``start`` is the
-    NLP's variables ``z0`` or a :class:`WarmStart`; ``cold(data, z0) -> WarmStart``, IPOPT's default start from
-    ``z0``; and the same solve as a :class:`~myriad.runtime.solvers.stepper.Stepper` (its iteration apart, for a
-    batch that refills finished members' places; ``solve`` is its ``solve``). None is jitted."""
-    n, m = layout.n, layout.m
-    bounds = Bounds(layout)
-    hl, hu, xl, xu, gaps, log_barrier, n_bounds = (bounds.hl, bounds.hu, bounds.xl, bounds.xu, bounds.gaps,
-                                                   bounds.log_barrier, bounds.count)
-    scale = jnp.asarray(layout.problem.scale)
-    mu_min = tol / 10.0
-    idle, enter, restoration_step = make_restoration(layout, tol, constr_viol_tol, mu_min)
-    # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
-    factorize_with_inertia, solve = ((layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
-                                     else (kkt.factorize_with_inertia, kkt.solve))
+    """``(solve, cold, stepper)`` of an :class:`InteriorPointStepper`: the pure solve ``(data, start) ->
+    InteriorPointSolution``, where ``start`` is the NLP's variables ``z0`` or a :class:`WarmStart`; ``cold(data, z0)
+    -> WarmStart``, IPOPT's default start from ``z0``; and the :class:`~myriad.runtime.solvers.stepper.Stepper`
+    (``solve`` is its ``solve``). None is jitted."""
+    stepper = InteriorPointStepper(layout, tol, constr_viol_tol, max_iter, second_order_correction)
+    return stepper.stepper.solve, stepper.cold, stepper.stepper
 
-    def cold(data: Any, z0: Any) -> WarmStart:
-        x0 = layout.start(jnp.asarray(z0) / scale, data)
+
+class InteriorPointStepper:
+    """The interior-point solve of one :class:`~.problem.Layout` and configuration, its iteration apart (built once).
+
+    :meth:`begin`, :meth:`step`, :meth:`running` and :meth:`end` are a :class:`~myriad.runtime.solvers.stepper.Stepper`
+    (:attr:`stepper`): the pure solve is its ``while_loop``, and a batch queue refills finished members' places with
+    the same methods. A step evaluates the point (:meth:`_evaluate`), stops there or takes a restoration iteration or
+    a main one (:meth:`_advance`: :meth:`_direction`, then the filter line search, :meth:`_search`).
+    """
+
+    def __init__(self, layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
+                 second_order_correction: bool = True):
+        self.layout, self.n, self.m = layout, layout.n, layout.m
+        self.tol, self.constr_viol_tol, self.max_iter = tol, constr_viol_tol, max_iter
+        self.second_order_correction = second_order_correction
+        self.bounds = Bounds(layout)
+        self.scale = jnp.asarray(layout.problem.scale)
+        self.mu_min = tol / 10.0
+        self.idle, self.enter, self.restoration_step = make_restoration(layout, tol, constr_viol_tol, self.mu_min)
+        # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
+        self.factorize_with_inertia, self.newton_solve = (
+            (layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
+            else (kkt.factorize_with_inertia, kkt.solve))
+        self.stepper = Stepper(self.begin, self.step, self.running, self.end)
+
+    def cold(self, data: Any, z0: Any) -> WarmStart:
+        """IPOPT's default start from the NLP's variables ``z0``."""
+        b, m = self.bounds, self.m
+        x0 = self.layout.start(jnp.asarray(z0) / self.scale, data)
         one = jnp.ones((), x0.dtype)
-        return WarmStart(x0, jnp.zeros(m, x0.dtype), jnp.where(hl, 1.0, 0.0), jnp.where(hu, 1.0, 0.0), MU_INIT * one,
-                         one, jnp.ones(m, x0.dtype), one)
+        return WarmStart(x0, jnp.zeros(m, x0.dtype), jnp.where(b.hl, 1.0, 0.0), jnp.where(b.hu, 1.0, 0.0),
+                         MU_INIT * one, one, jnp.ones(m, x0.dtype), one)
 
-    def error(x, lam, zl, zu, grad, g, jac, mu):
+    def error(self, x, lam, zl, zu, grad, g, jac, mu):
         """IPOPT's E_mu (its eq. 5) with s_max = 100."""
-        gl, gu = gaps(x)
+        b, m = self.bounds, self.m
+        gl, gu = b.gaps(x)
         dual = grad + (jac.T @ lam if m else 0.0) - zl + zu
-        compl = jnp.concatenate([jnp.where(hl, gl * zl - mu, 0.0), jnp.where(hu, gu * zu - mu, 0.0)])
+        compl = jnp.concatenate([jnp.where(b.hl, gl * zl - mu, 0.0), jnp.where(b.hu, gu * zu - mu, 0.0)])
         z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu))
-        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + n_bounds)) / S_MAX
-        s_c = jnp.maximum(S_MAX, z_sum / n_bounds) / S_MAX
+        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + b.count)) / S_MAX
+        s_c = jnp.maximum(S_MAX, z_sum / b.count) / S_MAX
         inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
         return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g)), inf(compl) / s_c)
 
-    def step(data: Any, st: _State) -> _State:
-        """One iteration (or, for a member that has stopped, its final values)."""
-        x, lam, zl, zu = st.x, st.lam, st.zl, st.zu
-        dtype, fresh = x.dtype, st.fresh
-        y = layout.multipliers(lam, st.sigma, st.row_scale)
+    def _evaluate(self, data: Any, st: _State) -> tuple[Any, jax.Array, jax.Array, jax.Array, jax.Array]:
+        """``(point, sigma, row_scale, kkt, stop)`` at the state's iterate: its derivatives (with the scaling
+        measured here at a fresh start), the optimality error and the status it stops with (``RUNNING``: none)."""
+        layout, n = self.layout, self.n
+        x, fresh = st.x, st.fresh
+        y = layout.multipliers(st.lam, st.sigma, st.row_scale)
         # One derivative program for both phases: the restoration phase weighs the objective by 0.
         f, c, grad_f, jac_c, hess = layout.derivatives(x[:n], y, data, jnp.where(st.rs.active, 0.0, 1.0))
         # The scaling is IPOPT's, measured at the start (the first iteration's point; lam = 0 there).
@@ -195,10 +248,15 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
         pt = layout.point(x, f, c, grad_f, jac_c, hess, sigma, row_scale)
         finite = jnp.all(jnp.array([jnp.all(jnp.isfinite(a)) for a in jax.tree.leaves(
             (pt.f, pt.grad, pt.g, pt.jac, pt.hess))]))
-        kkt = error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, 0.0)
-        converged = finite & ~st.rs.active & (kkt <= tol) & (pt.violation <= constr_viol_tol)
+        kkt = self.error(x, st.lam, st.zl, st.zu, pt.grad, pt.g, pt.jac, 0.0)
+        converged = finite & ~st.rs.active & (kkt <= self.tol) & (pt.violation <= self.constr_viol_tol)
         stop = jnp.where(~finite, int(Status.NOT_FINITE), jnp.where(
-            converged, int(Status.CONVERGED), jnp.where(st.k >= max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
+            converged, int(Status.CONVERGED), jnp.where(st.k >= self.max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
+        return pt, sigma, row_scale, kkt, stop
+
+    def step(self, data: Any, st: _State) -> _State:
+        """One iteration (or, for a member that has stopped, its final values)."""
+        pt, sigma, row_scale, kkt, stop = self._evaluate(data, st)
 
         def finish(_):
             # The iterate is final: no step, no line search (a cond, so a single solve skips their cost; under
@@ -206,112 +264,145 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             return st._replace(status=stop.astype(st.status.dtype), kkt=kkt, objective=pt.objective,
                                violation=pt.violation, sigma=sigma, row_scale=row_scale)
 
-        def advance(_):
-            """A main iteration: ``(the next state, failed)``."""
-            # Barrier update (monotone): as many decreases as the current point allows.
-            mu = jax.lax.while_loop(
-                lambda mu_: (mu_ > mu_min) & (error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
-                lambda mu_: decrease_mu(mu_, mu_min), st.mu)
-
-            gl, gu = gaps(x)
-            sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
-            grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
-            r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
-            factors, delta_w, inertia_ok = factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w,
-                                                                  r1)
-            dx, dlam = solve(factors, pt.jac, r1, -pt.g, presolved=True)
-            dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
-            dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
-            tau = jnp.maximum(TAU_MIN, 1.0 - mu)
-            alpha_max = bounds.step_to_boundary(x, dx, tau)
-            alpha_z = jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
-                                  fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
-
-            # Filter line search (Wächter & Biegler 2006, sec. 2.3) on theta = ||g||_1 and the barrier objective.
-            theta = jnp.sum(jnp.abs(pt.g))
-            phi0 = pt.f - mu * log_barrier(x)
-            slope = grad_phi @ dx
-            theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
-            theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
-            # The filter holds only pairs made under the current mu: IPOPT resets it when mu changes.
-            reset = mu != st.mu
-            f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
-            f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
-            a_min = alpha_min(theta, slope, theta_min)
-            tiny = jnp.max(jnp.abs(dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
-
-            def trial(ls):
-                j, _, _, x_t, lam_t, _, g_first, theta_first, _ = ls
-                alpha = alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
-                x_t, lam_t = x + alpha * dx, lam + alpha * dlam
-                if second_order_correction:
-                    # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
-                    # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
-                    # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
-                    # every trial of every member; a loop runs only while some member needs it.
-                    def corrected(c):
-                        dx_c, dlam_c = solve(factors, pt.jac, r1, -(alpha_max * pt.g + c[3]), presolved=True)
-                        a_c = bounds.step_to_boundary(x, dx_c, tau)
-                        return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
-
-                    use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= theta)
-                    _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
-                f_t, g_t = layout.values(x_t, data, sigma, row_scale)
-                theta_t = jnp.sum(jnp.abs(g_t))
-                ok, f_type = acceptable(alpha, theta_t, f_t - mu * log_barrier(x_t), theta, phi0, slope, theta_min,
-                                        theta_max, f_theta, f_phi)
-                g_first = jnp.where(j == 0, g_t, g_first)
-                theta_first = jnp.where(j == 0, theta_t, theta_first)
-                # The search gives up below alpha_min (after the full step and its correction).
-                give_up = ~ok & (j >= 1) & (
-                    (alpha_max * 0.5 ** j.astype(dtype) < a_min) | (j + 1 >= MAX_TRIALS))
-                return j + 1, ok, give_up, x_t, lam_t, alpha, g_first, theta_first, f_type
-
-            first_trial = 0 if second_order_correction else 1
-            ls0 = (jnp.array(first_trial), tiny, jnp.array(False), x + alpha_max * dx, lam + alpha_max * dlam,
-                   alpha_max, jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True))
-            _, accepted, _, x_new, lam_new, alpha, _, _, f_type = jax.lax.while_loop(
-                lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
-            # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
-            restore = ~accepted & inertia_ok & ((theta > 1e-2 * tol) | (pt.violation > 0.1 * constr_viol_tol))
-            restore = restore if m else jnp.array(False)
-            # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
-            grow = (accepted & ~tiny & ~f_type) | restore
-            f_theta, f_phi = add_pair(f_theta, f_phi, st.filter_next, grow, theta, phi0)
-            filter_next = jnp.where(reset, 0, st.filter_next) + grow.astype(jnp.int32)
-
-            zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
-            rs, lam_r, zl_r, zu_r = enter(x, pt.g, zl, zu, mu)
-            pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
-            new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
-                              zu=pick(zu_r, zu_new), mu=mu, rs=jax.tree.map(pick, rs, st.rs), theta_min=theta_min,
-                              theta_max=theta_max, filter_theta=f_theta, filter_phi=f_phi,
-                              filter_next=filter_next, delta_w=delta_w)
-            return new, ~(accepted | restore) | ~inertia_ok
-
-        def restore(_):
-            return restoration_step(st, pt, data)
-
         def iterate(_):
-            new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if m else advance(None)
-            infeasible = pt.violation > constr_viol_tol
-            negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
-            entered = new.rs.active & ~st.rs.active
-            stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
-            failed = failed | (stalls >= STALL_COUNT)
-            failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
-            status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
-            move = status == RUNNING
-            out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
-            return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
-                                violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
-                                row_scale=row_scale)
+            return self._iterate(data, st, pt, sigma, row_scale, kkt)
 
         return jax.lax.cond(stop == RUNNING, iterate, finish, None)
 
-    def begin(data: Any, start: Any) -> _State:
+    def _iterate(self, data: Any, st: _State, pt: Any, sigma, row_scale, kkt) -> _State:
+        """A restoration iteration (while that phase is active) or a main one, then the stall count and status."""
+        x = st.x
+
+        def restore(_):
+            return self.restoration_step(st, pt, data)
+
+        def advance(_):
+            return self._advance(data, st, pt, sigma, row_scale)
+
+        new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if self.m else advance(None)
+        infeasible = pt.violation > self.constr_viol_tol
+        negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
+        entered = new.rs.active & ~st.rs.active
+        stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
+        failed = failed | (stalls >= STALL_COUNT)
+        failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
+        status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
+        move = status == RUNNING
+        out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
+        return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
+                            violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
+                            row_scale=row_scale)
+
+    def _direction(self, st: _State, pt: Any) -> _Direction:
+        """The barrier update (monotone: as many decreases as the current point allows), the Newton step with
+        inertia correction and the bound multipliers' steps, and the fraction-to-the-boundary limits."""
+        b, m, mu_min = self.bounds, self.m, self.mu_min
+        x, lam, zl, zu = st.x, st.lam, st.zl, st.zu
+        mu = jax.lax.while_loop(
+            lambda mu_: (mu_ > mu_min) & (self.error(x, lam, zl, zu, pt.grad, pt.g, pt.jac, mu_) <= KAPPA_EPS * mu_),
+            lambda mu_: decrease_mu(mu_, mu_min), st.mu)
+        hl, hu = b.hl, b.hu
+        gl, gu = b.gaps(x)
+        sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
+        grad_phi = pt.grad - jnp.where(hl, mu / gl, 0.0) + jnp.where(hu, mu / gu, 0.0)
+        r1 = -(grad_phi + (pt.jac.T @ lam if m else 0.0))
+        factors, delta_w, inertia_ok = self.factorize_with_inertia(pt.hess, sig_l + sig_u, pt.jac, mu, st.delta_w,
+                                                                   r1)
+        dx, dlam = self.newton_solve(factors, pt.jac, r1, -pt.g, presolved=True)
+        dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
+        dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
+        tau = jnp.maximum(TAU_MIN, 1.0 - mu)
+        alpha_max = b.step_to_boundary(x, dx, tau)
+        alpha_z = jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
+                              fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau))
+        return _Direction(mu, factors, delta_w, inertia_ok, r1, dx, dlam, dzl, dzu, tau, alpha_max, alpha_z,
+                          grad_phi @ dx)
+
+    def _filter(self, st: _State, pt: Any, d: _Direction) -> _Filter:
+        """The filter line search's reference at the current point: ``theta``, ``phi``, the filter's thresholds
+        (fixed at the first iteration) and the filter itself, emptied when ``mu`` changed (as IPOPT does)."""
+        x = st.x
+        theta = jnp.sum(jnp.abs(pt.g))
+        phi0 = pt.f - d.mu * self.bounds.log_barrier(x)
+        theta_min = jnp.where(st.k == 0, THETA_MIN_FACT * jnp.maximum(1.0, theta), st.theta_min)
+        theta_max = jnp.where(st.k == 0, THETA_MAX_FACT * jnp.maximum(1.0, theta), st.theta_max)
+        reset = d.mu != st.mu
+        f_theta = jnp.where(reset, jnp.inf, st.filter_theta)
+        f_phi = jnp.where(reset, jnp.inf, st.filter_phi)
+        a_min = alpha_min(theta, d.slope, theta_min)
+        tiny = jnp.max(jnp.abs(d.dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
+        return _Filter(theta, phi0, theta_min, theta_max, reset, f_theta, f_phi, a_min, tiny)
+
+    def _search(self, data: Any, st: _State, pt: Any, d: _Direction, flt: _Filter, sigma, row_scale):
+        """IPOPT's filter line search from ``x`` along the Newton step: ``(accepted, x_new, lam_new, alpha,
+        f_type)``."""
+        x, lam, m, dtype = st.x, st.lam, self.m, st.x.dtype
+        soc = self.second_order_correction
+
+        def trial(ls):
+            j, _, _, x_t, lam_t, _, g_first, theta_first, _ = ls
+            alpha = d.alpha_max * 0.5 ** jnp.maximum(j - 1, 0).astype(dtype)
+            x_t, lam_t = x + alpha * d.dx, lam + alpha * d.dlam
+            if soc:
+                # Trial 1: the full step plus a correction for the constraints' curvature (IPOPT's eq. 27),
+                # taken only when the full step did not reduce the infeasibility. A loop of at most one pass,
+                # not a cond: under vmap a cond is a select, and the correction's solves would be paid on
+                # every trial of every member; a loop runs only while some member needs it.
+                def corrected(c):
+                    dx_c, dlam_c = self.newton_solve(d.factors, pt.jac, d.r1, -(d.alpha_max * pt.g + c[3]),
+                                                     presolved=True)
+                    a_c = self.bounds.step_to_boundary(x, dx_c, d.tau)
+                    return jnp.array(False), x + a_c * dx_c, lam + a_c * dlam_c, c[3]
+
+                use_soc = (j == 1) & jnp.all(jnp.isfinite(g_first)) & (theta_first >= flt.theta)
+                _, x_t, lam_t, _ = jax.lax.while_loop(lambda c: c[0], corrected, (use_soc, x_t, lam_t, g_first))
+            f_t, g_t = self.layout.values(x_t, data, sigma, row_scale)
+            theta_t = jnp.sum(jnp.abs(g_t))
+            ok, f_type = acceptable(alpha, theta_t, f_t - d.mu * self.bounds.log_barrier(x_t), flt.theta, flt.phi0,
+                                    d.slope, flt.theta_min, flt.theta_max, flt.f_theta, flt.f_phi)
+            g_first = jnp.where(j == 0, g_t, g_first)
+            theta_first = jnp.where(j == 0, theta_t, theta_first)
+            # The search gives up below alpha_min (after the full step and its correction).
+            give_up = ~ok & (j >= 1) & (
+                (d.alpha_max * 0.5 ** j.astype(dtype) < flt.a_min) | (j + 1 >= MAX_TRIALS))
+            return j + 1, ok, give_up, x_t, lam_t, alpha, g_first, theta_first, f_type
+
+        first_trial = 0 if soc else 1
+        ls0 = (jnp.array(first_trial), flt.tiny, jnp.array(False), x + d.alpha_max * d.dx, lam + d.alpha_max * d.dlam,
+               d.alpha_max, jnp.zeros(m, dtype), jnp.inf * jnp.ones((), dtype), jnp.array(True))
+        _, accepted, _, x_new, lam_new, alpha, _, _, f_type = jax.lax.while_loop(
+            lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
+        return accepted, x_new, lam_new, alpha, f_type
+
+    def _advance(self, data: Any, st: _State, pt: Any, sigma, row_scale) -> tuple[_State, jax.Array]:
+        """A main iteration: ``(the next state, failed)``; where the line search fails, the restoration phase starts
+        from the current point, which joins the filter."""
+        m, tol = self.m, self.tol
+        x, zl, zu = st.x, st.zl, st.zu
+        d = self._direction(st, pt)
+        flt = self._filter(st, pt, d)
+        accepted, x_new, lam_new, alpha, f_type = self._search(data, st, pt, d, flt, sigma, row_scale)
+        # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
+        restore = ~accepted & d.inertia_ok & ((flt.theta > 1e-2 * tol) | (pt.violation > 0.1 * self.constr_viol_tol))
+        restore = restore if m else jnp.array(False)
+        # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
+        grow = (accepted & ~flt.tiny & ~f_type) | restore
+        f_theta, f_phi = add_pair(flt.f_theta, flt.f_phi, st.filter_next, grow, flt.theta, flt.phi0)
+        filter_next = jnp.where(flt.reset, 0, st.filter_next) + grow.astype(jnp.int32)
+
+        zl_new, zu_new = self.bounds.clip_multipliers(x_new, zl + d.alpha_z * d.dzl, zu + d.alpha_z * d.dzu, d.mu)
+        rs, lam_r, zl_r, zu_r = self.enter(x, pt.g, zl, zu, d.mu)
+        pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
+        new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
+                          zu=pick(zu_r, zu_new), mu=d.mu, rs=jax.tree.map(pick, rs, st.rs),
+                          theta_min=flt.theta_min, theta_max=flt.theta_max, filter_theta=f_theta, filter_phi=f_phi,
+                          filter_next=filter_next, delta_w=d.delta_w)
+        return new, ~(accepted | restore) | ~d.inertia_ok
+
+    def begin(self, data: Any, start: Any) -> _State:
         """The state before the first iteration, from ``z0`` (IPOPT's default start) or a :class:`WarmStart`."""
-        ws = start if isinstance(start, WarmStart) else cold(data, start)
+        ws = start if isinstance(start, WarmStart) else self.cold(data, start)
+        hl, hu, xl, xu = self.bounds.hl, self.bounds.hu, self.bounds.xl, self.bounds.xu
         # A warm point sits on its active bounds up to the barrier's ~mu: keep it (barely) inside.
         push = WARM_PUSH * (1.0 + jnp.maximum(jnp.abs(xl), jnp.abs(xu)))
         x0 = jnp.where(hl, jnp.maximum(ws.x, xl + push), ws.x)
@@ -319,17 +410,18 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
         one = jnp.ones((), x0.dtype)
         empty = jnp.full(FILTER_SIZE, jnp.inf, x0.dtype)
         int0 = jnp.array(0, jnp.int32)
-        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, idle(x0), one, one,
+        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, self.idle(x0), one, one,
                       empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one,
                       jnp.nan * one, jnp.inf * one, int0, ws.sigma, ws.row_scale, ws.fresh > 0.5)
 
-    def running(st: _State) -> jax.Array:
+    def running(self, st: _State) -> jax.Array:
         return st.status == RUNNING
 
-    def end(data: Any, st: _State) -> InteriorPointSolution:
+    def end(self, data: Any, st: _State) -> InteriorPointSolution:
         """The solution at the final state."""
-        gl, gu = gaps(st.x)
-        held_l, held_u = hl & (st.zl > gl), hu & (st.zu > gu)
+        layout, n, m, scale, b = self.layout, self.n, self.m, self.scale, self.bounds
+        gl, gu = b.gaps(st.x)
+        held_l, held_u = b.hl & (st.zl > gl), b.hu & (st.zu > gu)
         y = layout.multipliers(st.lam, st.sigma, st.row_scale)
         slack_held = (held_l | held_u)[n:]
         rows_active = jnp.zeros(m, bool).at[layout.rows].set(
@@ -341,6 +433,3 @@ def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: 
             active_rows=rows_active,
             warm=WarmStart(st.x, st.lam, st.zl, st.zu, jnp.maximum(st.mu, WARM_MU), st.sigma, st.row_scale,
                            jnp.zeros((), st.x.dtype)))
-
-    stepper = Stepper(begin, step, running, end)
-    return stepper.solve, cold, stepper

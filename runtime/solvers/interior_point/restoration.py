@@ -65,7 +65,7 @@ from .rules import (
     fraction_to_boundary,
 )
 
-__all__ = ["Restoration", "make_restoration"]
+__all__ = ["Restoration", "RestorationPhase", "make_restoration"]
 
 # IPOPT's resto_penalty_parameter, required_infeasibility_reduction, bound_mult_reset_threshold, and the restoration
 # filter's theta_max_fact (1e8, raised from the main 1e4) and theta_min_fact on a problem that starts feasible.
@@ -93,8 +93,30 @@ class Restoration(NamedTuple):
     inf_ref: jax.Array  # ||g(x_R)||_inf
 
 
+class _Step(NamedTuple):
+    """A restoration iteration's barrier parameter, Newton step (with the elastic variables' and the bound
+    multipliers'), its fraction-to-the-boundary limits and the line search's reference values."""
+
+    mu: jax.Array
+    zeta: jax.Array
+    delta_w: jax.Array
+    inertia_ok: jax.Array
+    stationary: jax.Array  # the restoration problem's optimality error is below tol
+    dx: jax.Array
+    dlam: jax.Array
+    dp: jax.Array
+    dn: jax.Array
+    dzl: jax.Array
+    dzu: jax.Array
+    dzp: jax.Array
+    dzn: jax.Array
+    alpha_max: jax.Array
+    alpha_z: jax.Array
+    slope: jax.Array
+
+
 def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
-    """``(idle, enter, step)`` for one barrier problem (see the module docstring):
+    """``(idle, enter, step)`` of a :class:`RestorationPhase` for one barrier problem (see the module docstring):
 
     * ``idle(x0)``: an inactive :class:`Restoration` (the loop's initial state);
     * ``enter(x, g, zl, zu, mu) -> (Restoration, lam, zl, zu)``: start the phase at ``x``;
@@ -102,21 +124,31 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
       ``lam``, ``zl``, ``zu``, ``rs``, main filter and ``mu``) at the point ``pt``, whose Hessian is the constraints'
       alone; it leaves the phase (``rs.active`` False, main multipliers restored) when the main filter accepts.
     """
-    n, m = layout.n, layout.m
-    bounds = Bounds(layout)
-    hl, hu = bounds.hl, bounds.hu
-    n_bounds = bounds.count + 2 * m
-    on_w = jnp.arange(layout.n_x) < n  # the proximity term leaves the slacks free
+    phase = RestorationPhase(layout, tol, constr_viol_tol, mu_min)
+    return phase.idle, phase.enter, phase.step
 
-    def idle(x0):
+
+class RestorationPhase:
+    """The restoration phase of one barrier problem: :meth:`idle`, :meth:`enter` and :meth:`step` (see
+    :func:`make_restoration`); an iteration is :meth:`_direction`, :meth:`_search` and :meth:`_leave`."""
+
+    def __init__(self, layout, tol: float, constr_viol_tol: float, mu_min: float):
+        self.layout, self.tol, self.constr_viol_tol, self.mu_min = layout, tol, constr_viol_tol, mu_min
+        self.n, self.m = layout.n, layout.m
+        self.bounds = Bounds(layout)
+        self.n_bounds = self.bounds.count + 2 * self.m
+        self.on_w = jnp.arange(layout.n_x) < self.n  # the proximity term leaves the slacks free
+
+    def idle(self, x0):
         # Ones, not zeros: a vmapped pass computes the inactive members' step too (and discards it); keep it finite.
-        ones, dtype = jnp.ones(m, x0.dtype), x0.dtype
+        ones, dtype = jnp.ones(self.m, x0.dtype), x0.dtype
         empty = jnp.full(FILTER_SIZE, jnp.inf, dtype)
         zero = jnp.zeros((), dtype)
         return Restoration(jnp.array(False), ones, ones, ones, ones, x0, x0, x0, zero, zero, empty, empty,
                            jnp.array(0, jnp.int32), zero)
 
-    def enter(x, g, zl, zu, mu):
+    def enter(self, x, g, zl, zu, mu):
+        hl, hu = self.bounds.hl, self.bounds.hu
         mu_r = jnp.maximum(mu, jnp.max(jnp.abs(g), initial=0.0))
         # n = a + sqrt(a^2 + b) without the cancellation at large positive g (IPOPT's eq. 33)
         a, b = mu_r / (2.0 * RHO) - 0.5 * g, g * mu_r / (2.0 * RHO)
@@ -128,47 +160,56 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
                          empty, jnp.array(0, jnp.int32), jnp.max(jnp.abs(g), initial=0.0))
         return rs, jnp.zeros_like(g), jnp.where(hl, jnp.minimum(RHO, zl), 0.0), jnp.where(hu, jnp.minimum(RHO, zu), 0.0)
 
-    def step(st, pt, data):
+    def step(self, st, pt, data):
         # The state and point travel in the carry: computed from loop invariants, the pass would be hoisted out of
         # the loop by XLA and run for every member after all.
         def once(carry):
             st_, pt_, _, _ = carry
-            new_, failed_ = iteration(st_, pt_, data)
+            new_, failed_ = self._iteration(st_, pt_, data)
             return new_, pt_, failed_, jnp.array(True)
 
         new, _, failed, _ = jax.lax.while_loop(lambda c: c[0].rs.active & ~c[3], once,
                                                (st, pt, jnp.array(False), jnp.array(False)))
         return new, failed
 
-    def iteration(st, pt, data):
-        rs, x, lam, zl, zu = st.rs, st.x, st.lam, st.zl, st.zu
+    def _proximity(self, rs):
+        """``D_R^2``: the proximity term's weights (on the NLP's variables, not the slacks)."""
+        return jnp.where(self.on_w, jnp.minimum(1.0, 1.0 / jnp.abs(rs.x_ref)) ** 2, 0.0)
+
+    def _objective(self, rs, mu, zeta, x_, p_, n__):
+        """The restoration problem's barrier objective at ``(x, p, n)``."""
+        dev = x_ - rs.x_ref
+        return (RHO * jnp.sum(p_ + n__) + 0.5 * zeta * jnp.sum(self._proximity(rs) * dev * dev)
+                - mu * (self.bounds.log_barrier(x_) + jnp.sum(jnp.log(p_)) + jnp.sum(jnp.log(n__))))
+
+    def _error(self, st, pt, mu_):
+        """IPOPT's E_mu of the restoration problem (its eq. 5), at zeta = sqrt of the current mu."""
+        rs, x, lam, zl, zu, m, bounds = st.rs, st.x, st.lam, st.zl, st.zu, self.m, self.bounds
         p, n_, zp, zn, g, jac = rs.p, rs.n, rs.zp, rs.zn, pt.g, pt.jac
         gl, gu = bounds.gaps(x)
-        d2 = jnp.where(on_w, jnp.minimum(1.0, 1.0 / jnp.abs(rs.x_ref)) ** 2, 0.0)
         inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
+        dual_x = jnp.sqrt(rs.mu) * self._proximity(rs) * (x - rs.x_ref) + jac.T @ lam - zl + zu
+        dual = jnp.concatenate([dual_x, RHO - lam - zp, RHO + lam - zn])
+        compl = jnp.concatenate([jnp.where(bounds.hl, gl * zl - mu_, 0.0), jnp.where(bounds.hu, gu * zu - mu_, 0.0),
+                                 p * zp - mu_, n_ * zn - mu_])
+        z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)) + jnp.sum(zp) + jnp.sum(zn)
+        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + self.n_bounds)) / S_MAX
+        s_c = jnp.maximum(S_MAX, z_sum / self.n_bounds) / S_MAX
+        return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g - p + n_)), inf(compl) / s_c)
 
-        def error(mu_):
-            """IPOPT's E_mu of the restoration problem (its eq. 5), at zeta = sqrt of the current mu."""
-            dual_x = jnp.sqrt(rs.mu) * d2 * (x - rs.x_ref) + jac.T @ lam - zl + zu
-            dual = jnp.concatenate([dual_x, RHO - lam - zp, RHO + lam - zn])
-            compl = jnp.concatenate([jnp.where(hl, gl * zl - mu_, 0.0), jnp.where(hu, gu * zu - mu_, 0.0),
-                                     p * zp - mu_, n_ * zn - mu_])
-            z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)) + jnp.sum(zp) + jnp.sum(zn)
-            s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + n_bounds)) / S_MAX
-            s_c = jnp.maximum(S_MAX, z_sum / n_bounds) / S_MAX
-            return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g - p + n_)), inf(compl) / s_c)
-
+    def _direction(self, st, pt) -> _Step:
+        """The barrier update and the Newton step of the restoration problem, ``dp``, ``dn`` and the bound
+        multipliers' eliminated (the module docstring), with its fraction-to-the-boundary limits."""
+        rs, x, lam, zl, zu, bounds, mu_min = st.rs, st.x, st.lam, st.zl, st.zu, self.bounds, self.mu_min
+        p, n_, zp, zn, g, jac = rs.p, rs.n, rs.zp, rs.zn, pt.g, pt.jac
+        hl, hu = bounds.hl, bounds.hu
+        gl, gu = bounds.gaps(x)
+        d2 = self._proximity(rs)
         # A stationary point of the restoration problem that the main filter did not accept: locally infeasible.
-        stationary = error(0.0) <= tol
-        mu = jax.lax.while_loop(lambda mu_: (mu_ > mu_min) & (error(mu_) <= KAPPA_EPS * mu_),
+        stationary = self._error(st, pt, 0.0) <= self.tol
+        mu = jax.lax.while_loop(lambda mu_: (mu_ > mu_min) & (self._error(st, pt, mu_) <= KAPPA_EPS * mu_),
                                 lambda mu_: decrease_mu(mu_, mu_min), rs.mu)
         zeta = jnp.sqrt(mu)
-
-        def objective(x_, p_, n__):
-            dev = x_ - rs.x_ref
-            return (RHO * jnp.sum(p_ + n__) + 0.5 * zeta * jnp.sum(d2 * dev * dev)
-                    - mu * (bounds.log_barrier(x_) + jnp.sum(jnp.log(p_)) + jnp.sum(jnp.log(n__))))
-
         sig_l, sig_u = jnp.where(hl, zl / gl, 0.0), jnp.where(hu, zu / gu, 0.0)
         sp, sn = zp / p, zn / n_
         dinv = sp * sn / (sp + sn)  # the inverse of the eliminated (2,2) block
@@ -176,8 +217,8 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
         a_p, a_n = RHO - lam - mu / p, RHO + lam - mu / n_
         r1 = -(grad_x + jac.T @ lam)
         r2 = -(g - p + n_) - a_p / sp + a_n / sn
-        if layout.riccati is not None:  # stage by stage (riccati.py): the same system, the same schedule
-            ric = layout.riccati
+        if self.layout.riccati is not None:  # stage by stage (riccati.py): the same system, the same schedule
+            ric = self.layout.riccati
             factors, delta_w, inertia_ok = ric.factorize_weighted(pt.hess, zeta * d2 + sig_l + sig_u, jac, dinv,
                                                                   rs.delta_w)
             dx, dlam = ric.solve_weighted(factors, jac, dinv, r1, r2)
@@ -196,50 +237,62 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
             jnp.minimum(fraction_to_boundary(jnp.where(hl, zl, 0.0), dzl, tau),
                         fraction_to_boundary(jnp.where(hu, zu, 0.0), dzu, tau)),
             jnp.minimum(fraction_to_boundary(zp, dzp, tau), fraction_to_boundary(zn, dzn, tau)))
-
-        # The filter line search on the restoration problem (its own filter, emptied when its mu changes).
-        theta = jnp.sum(jnp.abs(g - p + n_))
-        phi0 = objective(x, p, n_)
         slope = grad_x @ dx + (RHO - mu / p) @ dp + (RHO - mu / n_) @ dn
-        reset = mu != rs.mu
+        return _Step(mu, zeta, delta_w, inertia_ok, stationary, dx, dlam, dp, dn, dzl, dzu, dzp, dzn, alpha_max,
+                     alpha_z, slope)
+
+    def _search(self, st, pt, d: _Step, data):
+        """The filter line search on the restoration problem (its own filter, emptied when its mu changes):
+        ``(accepted, alpha, f_type, f_t, g_t, theta, phi0, reset, f_theta, f_phi)``."""
+        rs, x, dtype = st.rs, st.x, st.x.dtype
+        p, n_, g = rs.p, rs.n, pt.g
+        theta = jnp.sum(jnp.abs(g - p + n_))
+        phi0 = self._objective(rs, d.mu, d.zeta, x, p, n_)
+        reset = d.mu != rs.mu
         f_theta = jnp.where(reset, jnp.inf, rs.filter_theta)
         f_phi = jnp.where(reset, jnp.inf, rs.filter_phi)
-        a_min = alpha_min(theta, slope, THETA_MIN_R)
+        a_min = alpha_min(theta, d.slope, THETA_MIN_R)
 
         def trial(ls):
             j = ls[0]
-            alpha = alpha_max * 0.5 ** j.astype(x.dtype)
-            x_t, p_t, n_t = x + alpha * dx, p + alpha * dp, n_ + alpha * dn
-            f_t, g_t = layout.values(x_t, data, st.sigma, st.row_scale)
-            ok, f_type = acceptable(alpha, jnp.sum(jnp.abs(g_t - p_t + n_t)), objective(x_t, p_t, n_t), theta, phi0,
-                                    slope, THETA_MIN_R, THETA_MAX_R, f_theta, f_phi)
+            alpha = d.alpha_max * 0.5 ** j.astype(dtype)
+            x_t, p_t, n_t = x + alpha * d.dx, p + alpha * d.dp, n_ + alpha * d.dn
+            f_t, g_t = self.layout.values(x_t, data, st.sigma, st.row_scale)
+            ok, f_type = acceptable(alpha, jnp.sum(jnp.abs(g_t - p_t + n_t)),
+                                    self._objective(rs, d.mu, d.zeta, x_t, p_t, n_t), theta, phi0, d.slope,
+                                    THETA_MIN_R, THETA_MAX_R, f_theta, f_phi)
             give_up = ~ok & ((0.5 * alpha < a_min) | (j + 1 >= MAX_TRIALS))
             return j + 1, ok, give_up, alpha, f_type, f_t, g_t
 
-        ls0 = (jnp.array(0), jnp.array(False), ~inertia_ok, alpha_max, jnp.array(False), pt.f, g)
-        _, accepted, _, alpha, f_type, f_t, g_t = jax.lax.while_loop(
-            lambda ls: ~ls[1] & ~ls[2], trial, ls0)
-        x_new, p_new, n_new = x + alpha * dx, p + alpha * dp, n_ + alpha * dn
-        zl_new, zu_new = bounds.clip_multipliers(x_new, zl + alpha_z * dzl, zu + alpha_z * dzu, mu)
-        zp_new = jnp.clip(zp + alpha_z * dzp, mu / (KAPPA_SIGMA * p_new), KAPPA_SIGMA * mu / p_new)
-        zn_new = jnp.clip(zn + alpha_z * dzn, mu / (KAPPA_SIGMA * n_new), KAPPA_SIGMA * mu / n_new)
+        ls0 = (jnp.array(0), jnp.array(False), ~d.inertia_ok, d.alpha_max, jnp.array(False), pt.f, g)
+        _, accepted, _, alpha, f_type, f_t, g_t = jax.lax.while_loop(lambda ls: ~ls[1] & ~ls[2], trial, ls0)
+        return accepted, alpha, f_type, f_t, g_t, theta, phi0, reset, f_theta, f_phi
+
+    def _iteration(self, st, pt, data):
+        """One restoration iteration: ``(the next state, failed)``."""
+        d = self._direction(st, pt)
+        accepted, alpha, f_type, f_t, g_t, theta, phi0, reset, f_theta, f_phi = self._search(st, pt, d, data)
+        rs, x, lam, zl, zu, bounds, mu = st.rs, st.x, st.lam, st.zl, st.zu, self.bounds, d.mu
+        x_new, p_new, n_new = x + alpha * d.dx, rs.p + alpha * d.dp, rs.n + alpha * d.dn
+        zl_new, zu_new = bounds.clip_multipliers(x_new, zl + d.alpha_z * d.dzl, zu + d.alpha_z * d.dzu, mu)
+        zp_new = jnp.clip(rs.zp + d.alpha_z * d.dzp, mu / (KAPPA_SIGMA * p_new), KAPPA_SIGMA * mu / p_new)
+        zn_new = jnp.clip(rs.zn + d.alpha_z * d.dzn, mu / (KAPPA_SIGMA * n_new), KAPPA_SIGMA * mu / n_new)
         grow = accepted & ~f_type
         f_theta, f_phi = add_pair(f_theta, f_phi, rs.filter_count, grow, theta, phi0)
         count = jnp.where(reset, 0, rs.filter_count) + grow.astype(jnp.int32)
 
         # Back to the main iteration (IPOPT's RestoFilterConvergenceCheck): enough less infeasible, and acceptable to
         # the main filter (which holds the entry point with its margins) for the main barrier objective.
+        inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
         theta_o, phi_o = jnp.sum(jnp.abs(g_t)), f_t - st.mu * bounds.log_barrier(x_new)
-        done = accepted & (inf(g_t) <= jnp.maximum(KAPPA_RESTO * rs.inf_ref, min(tol, constr_viol_tol))) & jnp.all(
-            (theta_o < st.filter_theta) | (phi_o < st.filter_phi))
+        done = accepted & (inf(g_t) <= jnp.maximum(KAPPA_RESTO * rs.inf_ref, min(self.tol, self.constr_viol_tol))) & (
+            jnp.all((theta_o < st.filter_theta) | (phi_o < st.filter_phi)))
         zl_main, zu_main = _reset_bound_multipliers(bounds, rs, x_new, st.mu)
-        rs_new = rs._replace(active=~done, p=p_new, n=n_new, zp=zp_new, zn=zn_new, mu=mu, delta_w=delta_w,
+        rs_new = rs._replace(active=~done, p=p_new, n=n_new, zp=zp_new, zn=zn_new, mu=mu, delta_w=d.delta_w,
                              filter_theta=f_theta, filter_phi=f_phi, filter_count=count)
-        new = st._replace(x=x_new, lam=jnp.where(done, 0.0, lam + alpha * dlam), zl=jnp.where(done, zl_main, zl_new),
-                          zu=jnp.where(done, zu_main, zu_new), rs=rs_new)
-        return new, stationary | ~inertia_ok | ~accepted
-
-    return idle, enter, step
+        new = st._replace(x=x_new, lam=jnp.where(done, 0.0, lam + alpha * d.dlam),
+                          zl=jnp.where(done, zl_main, zl_new), zu=jnp.where(done, zu_main, zu_new), rs=rs_new)
+        return new, d.stationary | ~d.inertia_ok | ~accepted
 
 
 def _reset_bound_multipliers(bounds: Bounds, rs: Restoration, x, mu) -> tuple[Any, Any]:

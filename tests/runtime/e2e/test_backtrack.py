@@ -14,6 +14,7 @@ from myriad.runtime.e2e import E2EConfig
 from myriad.runtime.e2e.step import BACKTRACK, USED, Program
 from myriad.runtime.e2e.train import _learnables, _model
 from myriad.runtime.solvers import InteriorPoint, Ipopt
+from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
@@ -25,7 +26,7 @@ GRID = SingleShooting(intervals=50)
 def program():
     system = load("cancer_treatment")
     expert = solve(system, GRID, Ipopt(), resimulate=False)
-    config = E2EConfig(gradient="implicit", implicit_solver=InteriorPoint(), optimizer=1e-2)
+    config = E2EConfig(adjoint=Implicit(), implicit_solver=InteriorPoint(), optimizer=1e-2)
     model = _model(system, config)
     train, frozen, consts, _ = _learnables(system, model, config)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), GRID)
@@ -42,20 +43,20 @@ def test_a_step_the_planner_cannot_solve_is_taken_back_and_halved(program):
     opt0, carry0 = prog.init_opt(train0), prog.init_carry(train0, frozen, consts)
     no = jnp.asarray(False)
     train1, opt1, carry1, m1 = prog.iteration(train0, opt0, carry0, frozen, consts, no)
-    assert USED[int(m1.used)] == "implicit" and bool(carry1["has_good"]) and float(carry1["scale"]) == 1.0
+    assert USED[int(m1.used)] == "implicit" and bool(carry1.has_good) and float(carry1.scale) == 1.0
     # The next model is one the planner cannot solve (NaN dynamics): back to train0 and its optimiser state.
     poisoned = jax.tree.map(lambda a: a * jnp.nan, train1)
     train2, opt2, carry2, m2 = prog.iteration(poisoned, opt1, carry1, frozen, consts, no)
     assert USED[int(m2.used)] == "backtracked" and bool(m2.finite) and not bool(m2.converged)
-    assert _same(train2, train0) and _same(opt2, opt0) and float(carry2["scale"]) == BACKTRACK
-    assert _same(carry2["warm"], carry1["warm"])  # the next solve starts where the last converged one ended
+    assert _same(train2, train0) and _same(opt2, opt0) and float(carry2.scale) == BACKTRACK
+    assert _same(carry2.warm, carry1.warm)  # the next solve starts where the last converged one ended
     # From train0 again: the same update at half the length, and the warm start solves train0 in a step or two.
     train3, _, carry3, m3 = prog.iteration(train2, opt2, carry2, frozen, consts, no)
     assert USED[int(m3.used)] == "implicit" and int(m3.iterations) <= 3, int(m3.iterations)
     for k in train0["model"]:
         full = float(train1["model"][k] - train0["model"][k])
         assert float(train3["model"][k] - train0["model"][k]) == pytest.approx(BACKTRACK * full, rel=1e-9)
-    assert float(carry3["scale"]) > BACKTRACK  # a converged solve lets the step grow back
+    assert float(carry3.scale) > BACKTRACK  # a converged solve lets the step grow back
 
 
 def test_without_a_converged_solve_there_is_nothing_to_go_back_to(program):
@@ -64,5 +65,5 @@ def test_without_a_converged_solve_there_is_nothing_to_go_back_to(program):
     poisoned = jax.tree.map(lambda a: a * jnp.nan, train0)
     train1, _, carry1, m = prog.iteration(poisoned, opt0, carry0, frozen, consts, jnp.asarray(False))
     assert USED[int(m.used)] == "skipped"  # as with on_failure="skip": no update, the run goes on
-    assert float(carry1["scale"]) == 1.0 and not bool(carry1["has_good"])
-    assert _same(carry1["warm"], carry0["warm"])
+    assert float(carry1.scale) == 1.0 and not bool(carry1.has_good)
+    assert _same(carry1.warm, carry0.warm)

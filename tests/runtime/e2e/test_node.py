@@ -15,13 +15,14 @@ import pytest
 from myriad.runtime import load, solve
 from myriad.runtime.e2e import E2EConfig, run_e2e
 from myriad.runtime.solvers import Ipopt
+from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.sysid.run import SysidConfig, node_fit_config, run_sysid
 from myriad.runtime.transcriptions import SingleShooting
 
 GRID = SingleShooting(intervals=50)
 WIDTH = (16, 16)
 FIT = SysidConfig(model="node", hidden=WIDTH, rounds=1, polish=None, fit=node_fit_config(150))
-NODE = E2EConfig(model="node", hidden=WIDTH, gradient="implicit", iterations=200, optimizer=1e-2)
+NODE = E2EConfig(model="node", hidden=WIDTH, adjoint=Implicit(), iterations=200, optimizer=1e-2)
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ from myriad.runtime.cli import main
 from myriad.runtime.e2e import E2EConfig, run_e2e
 from myriad.runtime.learn.checkpoint import CheckpointMismatch
 from myriad.runtime.solvers import Extragradient, Ipopt
+from myriad.runtime.solvers.adjoint import Implicit, Unrolled
 from myriad.runtime.transcriptions import SingleShooting
 
 GRID = SingleShooting(intervals=50)  # the published 100 in bench/e2e_table.py; 50 keeps this file's programs small
@@ -29,7 +30,7 @@ def _run(cancer, config, **kw):
 
 
 def test_parametric_e2e_recovers_r_and_delta_and_plans_at_the_optimum(cancer):
-    report = _run(cancer, E2EConfig(gradient="implicit", iterations=300))
+    report = _run(cancer, E2EConfig(adjoint=Implicit(), iterations=300))
     assert report.status == "completed" and report.counts["implicit"] == 300, report.message
     for name in ("r", "delta"):
         assert abs(report.learned[name] - report.true[name]) <= 0.01 * report.true[name], report.learned
@@ -40,7 +41,7 @@ def test_parametric_e2e_recovers_r_and_delta_and_plans_at_the_optimum(cancer):
 
 def test_inverse_optimal_control_recovers_a_cost_weight(cancer):
     # Dynamics known, the tumour weight a (3 in the spec) learned from the expert's controls, starting at 1.5.
-    config = E2EConfig(gradient="implicit", learn_dynamics=False, learn_cost=("a",), cost_guess={"a": 1.5},
+    config = E2EConfig(adjoint=Implicit(), learn_dynamics=False, learn_cost=("a",), cost_guess={"a": 1.5},
                        iterations=150, optimizer=5e-2)
     report = _run(cancer, config)
     assert abs(report.learned["cost.a"] - 3.0) <= 0.01 * 3.0, report.learned
@@ -73,22 +74,24 @@ def test_kill_and_resume_continues_bit_for_bit(cancer, tmp_path):
 
 def test_implicit_solves_that_do_not_converge_are_skipped_or_unrolled_and_counted(cancer):
     stalled = Extragradient(tol=1e-12, max_iter=2)
-    skipped = _run(cancer, E2EConfig(gradient="implicit", implicit_solver=stalled, iterations=3, on_failure="skip"))
+    skipped = _run(cancer, E2EConfig(adjoint=Implicit(), implicit_solver=stalled, iterations=3, on_failure="skip"))
     assert skipped.counts == {"unrolled": 0, "implicit": 0, "fallback_unrolled": 0, "skipped": 3, "backtracked": 0}
     guess = skipped.model.init_params()
     assert all(skipped.learned[k] == float(guess[k]) for k in guess)  # no update from a non-converged solve
     assert "3 skipped" in skipped.message
-    fallback = _run(cancer, E2EConfig(gradient="implicit", implicit_solver=stalled, iterations=3,
+    fallback = _run(cancer, E2EConfig(adjoint=Implicit(), implicit_solver=stalled, iterations=3,
                                       on_failure="unrolled"))
     assert fallback.counts["fallback_unrolled"] == 3
     assert all(fallback.learned[k] != float(guess[k]) for k in guess)
 
 
 def test_bad_inputs_are_refused_before_any_work(cancer, tmp_path):
-    for bad in ({"gradient": "adjoint"}, {"unroll": 0}, {"iterations": 0}, {"optimizer": -1.0}, {"loss": "cost"},
+    for bad in ({"adjoint": "adjoint"}, {"adjoint": Unrolled}, {"iterations": 0}, {"optimizer": -1.0}, {"loss": "cost"},
                 {"learn_dynamics": False}, {"cost_guess": {"a": 1.0}}, {"planner": Ipopt()}):
         with pytest.raises(ValueError):
             E2EConfig(**bad)
+    with pytest.raises(ValueError):  # K = 0 unrolled steps (once E2EConfig(unroll=0))
+        E2EConfig(adjoint=Unrolled(steps=0))
     with pytest.raises(ValueError, match="not parameters of the spec"):
         _run(cancer, E2EConfig(learn_cost=("zeta",)))
     with pytest.raises(ValueError, match="resume=True needs a checkpoint_dir"):

@@ -241,3 +241,20 @@ def test_queued_equals_one_vmap(slots):
         np.testing.assert_array_equal(got[key], expected[key])
     assert len(set(np.asarray(got["steps"]).tolist())) > 3  # the members did stop at different iterations
     np.testing.assert_allclose(got["root"], np.sqrt(a), rtol=1e-12)
+
+
+def test_the_extragradient_stepper_drives_a_queued_batch():
+    """The extragradient's stepper (the one its pure solve loops over) in a queue with 2 places for 3 members: each
+    member stops where its own solve stops, at the same point."""
+    from myriad.runtime.solvers.stepper import queued
+
+    system, nlp, _ = problem()
+    solver = Extragradient(max_iter=2000)
+    data = batch_data(system, params={"r": jnp.asarray([0.6, 0.1, 0.3])})
+    z0 = jnp.stack([jnp.asarray(nlp.initial_guess(jax.tree.map(lambda a: a[i], data))) for i in range(3)])
+    expected = jax.jit(jax.vmap(solver.pure_solve(nlp)))(data, z0)
+    got = jax.jit(queued(solver.batch_stepper(nlp), 2))(data, z0)
+    np.testing.assert_array_equal(got.iterations, expected.iterations)
+    assert len(set(np.asarray(got.iterations).tolist())) == 3  # the members did stop at different iterations
+    np.testing.assert_allclose(got.z, expected.z, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(got.converged, expected.converged)
