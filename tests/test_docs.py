@@ -66,6 +66,31 @@ def test_readme_commands_table_lists_every_command(module, capsys):
     assert not missing, f"README.md's Commands table has no row for {program} {missing}"
 
 
+def _help(module: str, argv: list[str], capsys) -> str:
+    with pytest.raises(SystemExit):
+        importlib.import_module(module).main([*argv, "--help"])
+    return capsys.readouterr().out
+
+
+def test_readme_command_options_exist(capsys):
+    """Every ``--option`` a README example or Commands row gives ``myriad COMMAND`` / ``myriadc COMMAND`` is one that
+    command's --help lists (the examples keep up with the command line)."""
+    text = (ROOT / "README.md").read_text()
+    shell = re.findall(r"^```sh\n(.*?)^```", text, re.MULTILINE | re.DOTALL)
+    lines = [line for block in shell for line in block.splitlines()]
+    lines += [cell.strip("`") for _, cell in table_cells(text) if cell.startswith(("`myriad ", "`myriadc "))]
+    wrong = []
+    for line in lines:
+        words = line.split("#")[0].split()
+        if len(words) < 2 or words[0] not in ("myriad", "myriadc") or words[1].startswith("-"):
+            continue
+        module = "myriad.runtime.cli" if words[0] == "myriad" else "myriad.compiler.cli"
+        listed = _help(module, [words[1]], capsys)
+        wrong += [f"{words[0]} {words[1]} {w}" for w in words[2:] if w.startswith("--")
+                  and w.split("=")[0].strip("[]`,.;:()") not in listed]
+    assert not wrong, f"README.md uses options the commands do not have: {wrong}"
+
+
 @pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None, reason="mkdocs is not installed (the docs extra)")
 def test_site_builds_strict(tmp_path):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
