@@ -78,47 +78,13 @@ def rejax_available() -> bool:
 def train_ppo(name: str, total_steps: int, seed: int) -> tuple[float, float]:
     """Train rejax's PPO on the functional env; the deterministic policy's cost in the reference env (float64)
     and the training's wall time (compilation included)."""
-    from flax import struct
-    from gymnax.environments import environment, spaces
     from rejax import PPO
 
+    from myriad.runtime.rl.gymnax import GymnaxEnv
+
     system = load(name)
-    env = Env(system, EnvOptions(action_bound=ACTION_BOUNDS.get(name)))  # actions in [-1, 1]
-
-    @struct.dataclass
-    class Params:
-        data: object
-        max_steps_in_episode: int = struct.field(pytree_node=False, default=env.options.steps)
-
-    class Gymnax(environment.Environment):
-        """Our env in gymnax's shape (what rejax trains on): ``done`` is terminated or truncated, gymnax resets."""
-
-        def __hash__(self):  # gymnax jits step/reset with the env static
-            return hash(env)
-
-        def __eq__(self, other):
-            return isinstance(other, Gymnax)
-
-        @property
-        def default_params(self):
-            return Params(jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), env.default_params()))
-
-        def reset_env(self, key, params):
-            return env.reset(key, params.data)
-
-        def step_env(self, key, state, action, params):
-            obs, state, reward, terminated, truncated, _ = env.step_env(state, action, params.data)
-            return obs, state, reward, terminated | truncated, {}
-
-        def action_space(self, params=None):
-            return spaces.Box(-1.0, 1.0, (env.action_size,), jnp.float32)
-
-        def observation_space(self, params=None):
-            big = float(np.finfo(np.float32).max)
-            lo, hi = (jnp.asarray(np.clip(b, -big, big), jnp.float32) for b in env.observation_bounds)
-            return spaces.Box(lo, hi, (env.observation_size,), jnp.float32)
-
-    g = Gymnax()
+    g = GymnaxEnv(Env(system, EnvOptions(action_bound=ACTION_BOUNDS.get(name))))  # actions in [-1, 1], float32
+    env = g.env
     algo = PPO.create(env=g, env_params=g.default_params, total_timesteps=total_steps, eval_freq=total_steps,
                       num_envs=64, num_steps=env.options.steps, num_epochs=4, num_minibatches=8,
                       learning_rate=3e-4, gamma=0.999, ent_coef=0.0, normalize_observations=True,

@@ -5,8 +5,9 @@
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
-The shape is gymnax's (``reset(key, params)``, ``step(key, state, action, params)``), so PureJaxRL-style trainers
-take it unchanged. One episode is the optimal-control problem on the grid t_k = k T / N:
+The signatures are gymnax's (``reset(key, params)``, ``step(key, state, action, params)``); a gymnax-based trainer
+(rejax, PureJaxRL) takes it through :class:`~myriad.runtime.rl.gymnax.GymnaxEnv`, which adds gymnax's base class,
+spaces and params (the optional extra ``rl``). One episode is the optimal-control problem on the grid t_k = k T / N:
 
 * observation: ``[x_k, T - t_k]``, the state and the time to go (the problems have a fixed horizon, so a policy
   needs the time to be Markov);
