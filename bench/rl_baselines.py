@@ -43,7 +43,7 @@ import numpy as np
 from myriad.runtime.loader import load
 from myriad.runtime.rl.env import Env, EnvOptions, play
 from myriad.runtime.rl.mpc import MPC, mismatched_params
-from myriad.runtime.rl.reference import ACTION_BOUNDS, evaluate, normalized_score, reference_env, reference_scores
+from myriad.runtime.rl.reference import ACTION_BOUNDS, baseline_costs, normalized_score, reference_env, reference_scores
 
 SYSTEMS = ["van_der_pol", "pendulum", "cancer_treatment", "mountain_car", "cartpole"]
 COLUMNS = ["open loop", "MPC", "MPC mismatch", "MPC noise", "PPO", "random"]
@@ -131,7 +131,7 @@ def run_system(name: str, args, rl: bool) -> dict:
         out["score"][column] = normalized_score(name, cost)
 
     start = time.perf_counter()
-    costs = evaluate(system, record["optimal"]["controls"])
+    costs = baseline_costs(system, record["optimal"]["controls"])
     put("open loop", costs["optimal"], time.perf_counter() - start)
     unpenalised = Env(system, dataclasses.replace(env.options, penalty=0.0))
     controls = np.asarray(record["optimal"]["controls"])

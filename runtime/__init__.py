@@ -16,6 +16,7 @@ from .solve import solve as solve
 from .solve import solve_batch as solve_batch
 from .solvers import SLSQP as SLSQP
 from .solvers import Extragradient as Extragradient
+from .solvers import InteriorPoint as InteriorPoint
 from .solvers import Ipopt as Ipopt
 from .system import OptimalControlUnavailable as OptimalControlUnavailable
 from .system import System as System
@@ -30,5 +31,5 @@ __all__ = [
     "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable", "UnsupportedFeature",
     "Euler", "Heun", "Midpoint", "RK4", "Adaptive",
     "SingleShooting", "MultipleShooting", "Trapezoidal", "HermiteSimpson", "ForwardBackwardSweep",
-    "Ipopt", "SLSQP", "Extragradient",
+    "Ipopt", "SLSQP", "Extragradient", "InteriorPoint",
 ]

@@ -39,8 +39,8 @@ from ..system import System
 from ..systems import NAMES
 from .env import Env, EnvOptions, play
 
-__all__ = ["FORMAT", "ACTION_BOUNDS", "EPISODES", "SEED", "reference_env", "evaluate", "compute", "reference_scores",
-           "normalized_score", "stale"]
+__all__ = ["FORMAT", "ACTION_BOUNDS", "EPISODES", "SEED", "reference_env", "baseline_costs", "compute",
+           "reference_scores", "normalized_score", "stale"]
 
 FORMAT = 1  # of the JSON file; bump with a change of layout
 ENV_VERSION = 0  # the -v0 of the Gymnasium ids: bump both when the env's definition changes
@@ -67,7 +67,7 @@ def _control_batch(env: Env, optimal: np.ndarray | None) -> jnp.ndarray:
     return jnp.concatenate(parts)
 
 
-def evaluate(system: System, optimal_controls: Any = None) -> dict[str, Any]:
+def baseline_costs(system: System, optimal_controls: Any = None) -> dict[str, Any]:
     """The env costs of the random policy (mean, std), zero control and, if given, the (N, m) optimal controls.
 
     One jit-compiled ``vmap`` over all episodes."""
@@ -106,13 +106,13 @@ def compute(name: str, progress=None) -> dict[str, Any]:
         if not sol.converged:
             continue
         controls = _played_controls(env, sol)
-        cost = evaluate(system, controls)["optimal"]
+        cost = baseline_costs(system, controls)["optimal"]
         if math.isfinite(cost) and (best is None or cost < best[0]):
             best = (cost, sol, controls)
     if best is None:
         raise RuntimeError(f"{name}: no transcription converged; no optimal reference")
     cost, sol, controls = best
-    scores = evaluate(system, controls)
+    scores = baseline_costs(system, controls)
     if not all(math.isfinite(v) for v in scores.values()):  # JSON has no NaN/inf, and a score needs both ends
         raise RuntimeError(f"{name}: a reference cost is not finite: {scores}")
     return {
@@ -209,7 +209,7 @@ def stale(doc: dict[str, Any] | None = None, names=NAMES, rtol: float = 1e-9) ->
         if r["spec_sha256"] != system.spec_sha256 or r["action_bound"] != ACTION_BOUNDS.get(name):
             problems.append(f"{name}: spec or action bound changed")
             continue
-        now = evaluate(system, r["optimal"]["controls"])
+        now = baseline_costs(system, r["optimal"]["controls"])
         for key, old in (("optimal", r["optimal"]["cost"]), ("zero_control", r["zero_control"]["cost"]),
                          ("random", r["random"]["cost"])):
             if not math.isclose(now[key], old, rel_tol=rtol, abs_tol=rtol):
