@@ -22,7 +22,7 @@ import numpy as np
 from ..integrators import RK4, rollout, rollout_with_cost
 from ..system import System
 from ..transcriptions.nlp_parts import final_value_rows
-from ..transcriptions.scaling import control_scale, state_scale
+from ..transcriptions.nominal_scales import control_scale, state_scale
 
 __all__ = ["Problem", "problem", "forward", "backward", "sweep_map", "relative_change", "cost_and_trajectories"]
 

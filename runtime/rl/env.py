@@ -54,7 +54,7 @@ from ..integrators import INTEGRATORS, AbstractIntegrator, Heun
 from ..loader import load
 from ..system import System
 from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows
-from ..transcriptions.scaling import state_scale
+from ..transcriptions.nominal_scales import state_scale
 
 __all__ = ["EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
 

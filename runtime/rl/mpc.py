@@ -52,7 +52,7 @@ from ..data import ProblemData, check_structural_params
 from ..nlp import NLP
 from ..solvers import Ipopt
 from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows, guess_controls
-from ..transcriptions.scaling import control_scale, state_scale
+from ..transcriptions.nominal_scales import control_scale, state_scale
 from .env import Env, EnvState
 
 __all__ = ["MPC", "MPCEpisode", "mismatched_params"]

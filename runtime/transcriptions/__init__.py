@@ -14,8 +14,8 @@ from ..indirect import SweepState as SweepState
 from .base import AbstractTranscription as AbstractTranscription
 from .hermite_simpson import HermiteSimpson as HermiteSimpson
 from .multiple_shooting import MultipleShooting as MultipleShooting
-from .scaling import control_scale as control_scale
-from .scaling import state_scale as state_scale
+from .nominal_scales import control_scale as control_scale
+from .nominal_scales import state_scale as state_scale
 from .single_shooting import SingleShooting as SingleShooting
 from .trapezoidal import Trapezoidal as Trapezoidal
 

@@ -46,8 +46,9 @@ class AbstractTranscription(AbstractMethod):
       absolute tolerance on x_i(T).
     - Path constraints (schema 2) are the last rows, point-major (all of point 0's, then point 1's ...):
       path_lower / s <= g(x_k, u_k, t_k) / s <= path_upper / s, with s the constraint's nominal scale
-      (:func:`~myriad.runtime.transcriptions.scaling.path_scale`), at every point ``unravel`` returns (every node;
-      Hermite-Simpson's midpoints too; for shooting the control nodes, with the states the rollout reaches there).
+      (:func:`~myriad.runtime.transcriptions.nominal_scales.path_scale`), at every point ``unravel`` returns (every
+      node; Hermite-Simpson's midpoints too; for shooting the control nodes, with the states the rollout reaches
+      there).
     - A free final time (schema 2, ``system.free_horizon``) is the *last* entry of ``z``, bounded by
       ``horizon_bounds``, started at ``horizon_guess``, scaled by the guess. The grid is in tau in [0, 1] and the
       node times are t_k = T s_k (``grid.free_node_times``), which is the time scaling x' = T f in tau; the terminal

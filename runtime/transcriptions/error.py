@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..system import System
-from .scaling import state_scale
+from .nominal_scales import state_scale
 
 __all__ = ["ErrorEstimate", "REFERENCE_SUBSTEPS", "estimate", "interval_errors", "local_errors"]
 

@@ -2,7 +2,7 @@
 path-constraint rows, the free final time as a variable, and Jacobian sparsity patterns.
 
 Public because the indirect methods and the RL environments build the same rows and guesses from a system; the
-nominal magnitudes they are scaled by are in :mod:`.scaling`.
+nominal magnitudes they are scaled by are in :mod:`.nominal_scales`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..system import System
-from .scaling import nominal_scale, path_scale
+from .nominal_scales import nominal_scale, path_scale
 
 __all__ = [
     "guess_controls",

@@ -22,7 +22,7 @@ from .nlp_parts import (
     path_bounds,
     path_rows,
 )
-from .scaling import control_scale, state_scale
+from .nominal_scales import control_scale, state_scale
 from .staged import stage_derivatives as staged_stage_derivatives
 from .staged import staged_derivatives
 

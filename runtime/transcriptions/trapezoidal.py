@@ -23,7 +23,7 @@ from .nlp_parts import (
     path_rows,
     sparsity,
 )
-from .scaling import control_scale, state_scale
+from .nominal_scales import control_scale, state_scale
 
 __all__ = ["Trapezoidal"]
 

@@ -9,7 +9,7 @@ import pytest
 from myriad.runtime import load, simulate
 from myriad.runtime.integrators import RK4, Adaptive, Heun
 from myriad.runtime.rl import Env, EnvOptions, make_jax, play
-from myriad.runtime.transcriptions.scaling import state_scale
+from myriad.runtime.transcriptions.nominal_scales import state_scale
 
 from ...helpers import ROOT
 

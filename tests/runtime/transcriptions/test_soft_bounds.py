@@ -15,7 +15,7 @@ from myriad.runtime.solve import solve
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.solvers.interior_point import InteriorPoint
 from myriad.runtime.transcriptions import MultipleShooting, SingleShooting
-from myriad.runtime.transcriptions.scaling import state_scale
+from myriad.runtime.transcriptions.nominal_scales import state_scale
 
 jax.config.update("jax_enable_x64", True)
 SPECS = Path(__file__).parent.parent / "specs"

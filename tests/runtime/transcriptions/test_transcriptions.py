@@ -27,7 +27,7 @@ from myriad.runtime.transcriptions import (
     Trapezoidal,
     default_data,
 )
-from myriad.runtime.transcriptions.scaling import nominal_scale
+from myriad.runtime.transcriptions.nominal_scales import nominal_scale
 
 from .._nlp import _slope, _solve
 from .._problems import BoundedReach, DoubleIntegrator, NoUStar, ScalarLQ
