@@ -101,141 +101,7 @@ class SingleShooting(AbstractTranscription):
             object.__setattr__(self, "soft_state_bounds", float(rho))
 
     def transcribe(self, system: System) -> NLP:
-        N, m = self.intervals, system.n_controls
-        T_fixed = float(system.horizon)
-        times, h = node_times(self.grid, N, T_fixed)
-        positions = self.positions()
-        free = system.free_horizon
-        arrays = system.arrays()
-        fixed, final = final_value_rows(system)
-        bounded = bounded_free_states(system) if self.enforce_final_state_bounds else np.zeros(0, dtype=np.int64)
-        sx = state_scale(system)
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        integrator = self.integrator
-        nU = (N + 1) * m
-        rho = self.soft_state_bounds
-        nS = bounded.size if rho is not None else 0  # elastic rows: slacks p (nS) and n (nS) after the controls
-
-        def clock(z):
-            """(T, node times): the constants of a fixed horizon, or from the decision T (see grid.free_node_times)."""
-            if free:
-                return z[-1], free_node_times(positions, z[-1])[0]
-            return T_fixed, times
-
-        # The uniform fixed grid keeps the rollouts it always had (t_k = k h); any other steps through its nodes.
-        def run(f, x0, us, ts, checkpoint=False):
-            if self.grid is None and not free:
-                return rollout(integrator, f, x0, 0.0, h, us, checkpoint)
-            return rollout_on(integrator, f, x0, ts, us, checkpoint)
-
-        def run_with_cost(f, L, x0, us, ts, checkpoint=False):
-            if self.grid is None and not free:
-                return rollout_with_cost(integrator, f, L, x0, 0.0, h, us, checkpoint)
-            return rollout_with_cost_on(integrator, f, L, x0, ts, us, checkpoint)
-
-        def controls_of(z):
-            return jnp.reshape(z[:nU], (N + 1, m))
-
-        def fields(params):
-            f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
-            L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
-            return f, L
-
-        def slack(z):
-            return z[nU:nU + nS] - z[nU + nS:nU + 2 * nS]  # p - n
-
-        def rows(z, xs, us, ts, params):
-            xT = xs[-1]
-            bound = xT[bounded] / sx[bounded] + (slack(z) if nS else 0.0)
-            return jnp.concatenate([xT[fixed] - final, bound, path_rows(system, params, xs, us, ts)])
-
-        def objective_and_constraints(z, data):
-            params = data.params
-            f, L = fields(params)
-            T, ts = clock(z)
-            us = controls_of(z)
-            xs, cost = run_with_cost(f, L, data.x0, us, ts, self.checkpoint)
-            penalty = rho * jnp.sum(z[nU:nU + 2 * nS]) if nS else 0.0
-            return cost[-1] + system.terminal_cost(xs[-1], T, params) + penalty, rows(z, xs, us, ts, params)
-
-        def objective(z, data):
-            return objective_and_constraints(z, data)[0]
-
-        def constraints(z, data):
-            # Without the cost state: the cheaper rollout when only the rows are wanted.
-            f, _ = fields(data.params)
-            _, ts = clock(z)
-            us = controls_of(z)
-            return rows(z, run(f, data.x0, us, ts, self.checkpoint), us, ts, data.params)
-
-        def unravel(z, data):
-            f, _ = fields(data.params)
-            _, ts = clock(z)
-            us = controls_of(z)
-            return jnp.asarray(ts), run(f, data.x0, us, ts), us
-
-        def lagrangian_derivatives(z, lam, data, objective_weight=1.0, hessian=True):
-            # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
-            return staged_derivatives(*stage_problem(z, data), z, stage_index, lam, objective_weight, hessian)
-
-        def stage_derivatives(z, lam, data, objective_weight=1.0):
-            # The same, the Hessian left as its stages (a Riccati Newton step factorises it in O(N)). The running
-            # cost's state is read by nothing but F, linearly: its rows and columns of every stage's curvature, of
-            # G_yy and of dc/dy_N are zero, so the stages leave it out (exactly) and the recursion works on n states.
-            f, c, grad, jac, st = staged_stage_derivatives(*stage_problem(z, data), z, stage_index, lam,
-                                                           objective_weight)
-            n, keep = system.n_states, np.r_[np.arange(system.n_states), system.n_states + 1 + np.arange(2 * m)]
-            w = take(take(st.w, keep, axis=1), keep, axis=2)
-            return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=w, g_yy=st.g_yy[:n, :n],
-                                                g_c=st.g_c[:, :n])
-
-        def stage_problem(z, data):
-            n = system.n_states
-            f_aug = with_running_cost(*fields(data.params), n)  # the field objective_and_constraints integrates
-
-            def step(k, y, v):
-                t_k, h_k = (k.astype(y.dtype) * h, h) if self.grid is None else (jnp.asarray(times)[k],
-                                                                                  jnp.asarray(h)[k])
-                return integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
-
-            def terminal(y):  # no path rows or slacks here: rows() reads the final state alone
-                return y[n] + system.terminal_cost(y[:n], T_fixed, data.params), rows(z, y[None, :n], None, None,
-                                                                                      data.params)
-
-            y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
-            return step, terminal, y0
-
-        # Step k reads u_k and u_{k+1}; staged only where nothing else reaches the rows (no path rows, slacks or T).
-        stage_index = np.arange(N)[:, None] * m + np.arange(2 * m)[None, :]
-        staged = not free and nS == 0 and not system.n_path
-
-        def initial_guess(data):
-            del data
-            return guess.copy()  # a host constant: no device round trip on every solve
-
-        guess = np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess])
-
-        p_lo, p_hi = path_bounds(system, N + 1)
-        n_rows = fixed.size + bounded.size + p_lo.size
-        return NLP(
-            objective=objective,
-            constraints=constraints if n_rows else None,
-            c_lower=np.concatenate([np.zeros(fixed.size), arrays["x_lower"][bounded] / sx[bounded], p_lo]),
-            c_upper=np.concatenate([np.zeros(fixed.size), arrays["x_upper"][bounded] / sx[bounded], p_hi]),
-            z_lower=np.concatenate([np.tile(arrays["u_lower"], N + 1), np.zeros(2 * nS), T_lo]),
-            z_upper=np.concatenate([np.tile(arrays["u_upper"], N + 1), np.full(2 * nS, np.inf), T_hi]),
-            initial_guess=initial_guess,
-            unravel=unravel,
-            jacobian_sparsity=None,
-            z_scale=np.concatenate([np.tile(control_scale(system), N + 1), np.ones(2 * nS), T_scale]),
-            name=f"{system.name}/single_shooting(N={N}, {type(integrator).__name__}"
-                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''}"
-                 f"{f', soft bounds {rho:g}' if nS else ''})",
-            objective_and_constraints=objective_and_constraints if n_rows else None,
-            lagrangian_derivatives=lagrangian_derivatives if staged else None,
-            stage_derivatives=stage_derivatives if staged else None,
-            stage_index=stage_index if staged else None,
-        )
+        return _Transcribed(self, system).nlp()
 
     def sample(self, system, states, controls, final_time=None):
         del states
@@ -245,3 +111,151 @@ class SingleShooting(AbstractTranscription):
         if self.soft_state_bounds is not None and self.enforce_final_state_bounds:
             U = np.concatenate([U, np.zeros(2 * bounded_free_states(system).size)])  # the slacks: no violation
         return np.concatenate([U, [T]]) if system.free_horizon else U
+
+
+class _Transcribed:
+    """Single shooting's NLP for one system: its constants, and its functions as methods over them."""
+
+    def __init__(self, method: SingleShooting, system: System):
+        self.method, self.system = method, system
+        self.N, self.m = method.intervals, system.n_controls
+        self.T_fixed = float(system.horizon)
+        self.times, self.h = node_times(method.grid, self.N, self.T_fixed)
+        self.positions = method.positions()
+        self.free = system.free_horizon
+        self.fixed, self.final = final_value_rows(system)
+        self.bounded = (bounded_free_states(system) if method.enforce_final_state_bounds
+                        else np.zeros(0, dtype=np.int64))
+        self.sx = state_scale(system)
+        self.integrator = method.integrator
+        self.nU = (self.N + 1) * self.m
+        self.rho = method.soft_state_bounds
+        # Elastic rows: slacks p (nS) and n (nS) after the controls.
+        self.nS = self.bounded.size if self.rho is not None else 0
+        # Step k reads u_k and u_{k+1}; staged only where nothing else reaches the rows (no path rows, slacks or T).
+        self.stage_index = np.arange(self.N)[:, None] * self.m + np.arange(2 * self.m)[None, :]
+        self.staged = not self.free and self.nS == 0 and not system.n_path
+
+    def clock(self, z):
+        """(T, node times): the constants of a fixed horizon, or from the decision T (see grid.free_node_times)."""
+        if self.free:
+            return z[-1], free_node_times(self.positions, z[-1])[0]
+        return self.T_fixed, self.times
+
+    # The uniform fixed grid keeps the rollouts it always had (t_k = k h); any other steps through its nodes.
+    def run(self, f, x0, us, ts, checkpoint=False):
+        if self.method.grid is None and not self.free:
+            return rollout(self.integrator, f, x0, 0.0, self.h, us, checkpoint)
+        return rollout_on(self.integrator, f, x0, ts, us, checkpoint)
+
+    def run_with_cost(self, f, L, x0, us, ts, checkpoint=False):
+        if self.method.grid is None and not self.free:
+            return rollout_with_cost(self.integrator, f, L, x0, 0.0, self.h, us, checkpoint)
+        return rollout_with_cost_on(self.integrator, f, L, x0, ts, us, checkpoint)
+
+    def controls_of(self, z):
+        return jnp.reshape(z[:self.nU], (self.N + 1, self.m))
+
+    def fields(self, params):
+        f = lambda x, u, t: self.system.dynamics(x, u, t, params)  # noqa: E731
+        L = lambda x, u, t: self.system.running_cost(x, u, t, params)  # noqa: E731
+        return f, L
+
+    def slack(self, z):
+        return z[self.nU:self.nU + self.nS] - z[self.nU + self.nS:self.nU + 2 * self.nS]  # p - n
+
+    def rows(self, z, xs, us, ts, params):
+        xT, bounded = xs[-1], self.bounded
+        bound = xT[bounded] / self.sx[bounded] + (self.slack(z) if self.nS else 0.0)
+        return jnp.concatenate([xT[self.fixed] - self.final, bound, path_rows(self.system, params, xs, us, ts)])
+
+    def objective_and_constraints(self, z, data):
+        params = data.params
+        f, L = self.fields(params)
+        T, ts = self.clock(z)
+        us = self.controls_of(z)
+        xs, cost = self.run_with_cost(f, L, data.x0, us, ts, self.method.checkpoint)
+        penalty = self.rho * jnp.sum(z[self.nU:self.nU + 2 * self.nS]) if self.nS else 0.0
+        return cost[-1] + self.system.terminal_cost(xs[-1], T, params) + penalty, self.rows(z, xs, us, ts, params)
+
+    def objective(self, z, data):
+        return self.objective_and_constraints(z, data)[0]
+
+    def constraints(self, z, data):
+        # Without the cost state: the cheaper rollout when only the rows are wanted.
+        f, _ = self.fields(data.params)
+        _, ts = self.clock(z)
+        us = self.controls_of(z)
+        return self.rows(z, self.run(f, data.x0, us, ts, self.method.checkpoint), us, ts, data.params)
+
+    def unravel(self, z, data):
+        f, _ = self.fields(data.params)
+        _, ts = self.clock(z)
+        us = self.controls_of(z)
+        return jnp.asarray(ts), self.run(f, data.x0, us, ts), us
+
+    def lagrangian_derivatives(self, z, lam, data, objective_weight=1.0, hessian=True):
+        # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
+        return staged_derivatives(*self.stage_problem(z, data), z, self.stage_index, lam, objective_weight, hessian)
+
+    def stage_derivatives(self, z, lam, data, objective_weight=1.0):
+        # The same, the Hessian left as its stages (a Riccati Newton step factorises it in O(N)). The running
+        # cost's state is read by nothing but F, linearly: its rows and columns of every stage's curvature, of
+        # G_yy and of dc/dy_N are zero, so the stages leave it out (exactly) and the recursion works on n states.
+        f, c, grad, jac, st = staged_stage_derivatives(*self.stage_problem(z, data), z, self.stage_index, lam,
+                                                       objective_weight)
+        n, m = self.system.n_states, self.m
+        keep = np.r_[np.arange(n), n + 1 + np.arange(2 * m)]
+        w = take(take(st.w, keep, axis=1), keep, axis=2)
+        return f, c, grad, jac, st._replace(a=st.a[:, :n, :n], b=st.b[:, :n], w=w, g_yy=st.g_yy[:n, :n],
+                                            g_c=st.g_c[:, :n])
+
+    def stage_problem(self, z, data):
+        system, m, h, times = self.system, self.m, self.h, self.times
+        n = system.n_states
+        f_aug = with_running_cost(*self.fields(data.params), n)  # the field objective_and_constraints integrates
+
+        def step(k, y, v):
+            t_k, h_k = (k.astype(y.dtype) * h, h) if self.method.grid is None else (jnp.asarray(times)[k],
+                                                                                     jnp.asarray(h)[k])
+            return self.integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
+
+        def terminal(y):  # no path rows or slacks here: rows() reads the final state alone
+            return y[n] + system.terminal_cost(y[:n], self.T_fixed, data.params), self.rows(z, y[None, :n], None,
+                                                                                           None, data.params)
+
+        y0 = jnp.concatenate([jnp.asarray(data.x0, z.dtype), jnp.zeros((1,), z.dtype)])
+        return step, terminal, y0
+
+    def nlp(self) -> NLP:
+        system, N, nS, bounded, sx = self.system, self.N, self.nS, self.bounded, self.sx
+        arrays = system.arrays()
+        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
+        guess = np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess])
+
+        def initial_guess(data):
+            del data
+            return guess.copy()  # a host constant: no device round trip on every solve
+
+        p_lo, p_hi = path_bounds(system, N + 1)
+        n_rows = self.fixed.size + bounded.size + p_lo.size
+        staged = self.staged
+        return NLP(
+            objective=self.objective,
+            constraints=self.constraints if n_rows else None,
+            c_lower=np.concatenate([np.zeros(self.fixed.size), arrays["x_lower"][bounded] / sx[bounded], p_lo]),
+            c_upper=np.concatenate([np.zeros(self.fixed.size), arrays["x_upper"][bounded] / sx[bounded], p_hi]),
+            z_lower=np.concatenate([np.tile(arrays["u_lower"], N + 1), np.zeros(2 * nS), T_lo]),
+            z_upper=np.concatenate([np.tile(arrays["u_upper"], N + 1), np.full(2 * nS, np.inf), T_hi]),
+            initial_guess=initial_guess,
+            unravel=self.unravel,
+            jacobian_sparsity=None,
+            z_scale=np.concatenate([np.tile(control_scale(system), N + 1), np.ones(2 * nS), T_scale]),
+            name=f"{system.name}/single_shooting(N={N}, {type(self.integrator).__name__}"
+                 f"{'' if self.method.grid is None else ', graded'}{', free T' if self.free else ''}"
+                 f"{f', soft bounds {self.rho:g}' if nS else ''})",
+            objective_and_constraints=self.objective_and_constraints if n_rows else None,
+            lagrangian_derivatives=self.lagrangian_derivatives if staged else None,
+            stage_derivatives=self.stage_derivatives if staged else None,
+            stage_index=self.stage_index if staged else None,
+        )
