@@ -128,134 +128,7 @@ class MultipleShooting(AbstractTranscription):
         return dataclasses.replace(self, intervals=steps // self.steps_per_interval, grid=tuple(grid))
 
     def transcribe(self, system: System) -> NLP:
-        M, S = self.intervals, self.steps_per_interval
-        N = M * S
-        n, m = system.n_states, system.n_controls
-        T_fixed = float(system.horizon)
-        times, h = node_times(self.grid, N, T_fixed)
-        positions = self.positions()
-        free = system.free_horizon
-        shooting_times = times[::S]  # shooting nodes t_0..t_M
-        window = np.arange(M)[:, None] * S + np.arange(S + 1)[None, :]  # control nodes of each interval, (M, S+1)
-        arrays = system.arrays()
-        fixed, final = final_value_rows(system)
-        sx, su = state_scale(system), control_scale(system)
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        integrator = self.integrator
-        nX, nU = M * n, (N + 1) * m
-        uniform = self.grid is None and not free
-
-        def clock(z):
-            """(T, node times, each interval's start or nodes): constants, or from the decision T."""
-            if free:
-                ts = free_node_times(positions, z[-1])[0]
-                return z[-1], ts, ts[window]
-            # Each interval's rollout starts from its time (uniform grid: t_j and the step h, as always) or steps
-            # through its own S + 1 nodes (a grid).
-            return T_fixed, times, jnp.asarray(shooting_times[:-1] if self.grid is None else times[window])
-
-        def split(z):
-            return jnp.reshape(z[:nX], (M, n)), jnp.reshape(z[nX : nX + nU], (N + 1, m))
-
-        def run(f, x, ts, u):
-            if uniform:
-                return rollout(integrator, f, x, ts, h, u)
-            return rollout_on(integrator, f, x, ts, u)
-
-        def run_with_cost(f, L, x, ts, u):
-            if uniform:
-                return rollout_with_cost(integrator, f, L, x, ts, h, u)
-            return rollout_with_cost_on(integrator, f, L, x, ts, u)
-
-        def fields(params):
-            f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
-            L = lambda x, u, t: system.running_cost(x, u, t, params)  # noqa: E731
-            return f, L
-
-        def starts_and_windows(z, data):
-            X, U = split(z)
-            starts = jnp.concatenate([jnp.asarray(data.x0)[None], X[:-1]], axis=0)
-            return X, U, starts, U[window]
-
-        def node_states(X, xs):
-            # Each interval's own start is the node variable; its end is dropped for the next node (any defect
-            # shows as a jump there, not hidden by overwriting the node).
-            return jnp.concatenate([jnp.reshape(xs[:, :S], (N, n)), X[-1:]], axis=0)
-
-        def constraint_rows(X, U, xs, ts, params):
-            return jnp.concatenate([((xs[:, -1] - X) / sx).ravel(), X[-1, fixed] - final,
-                                    path_rows(system, params, node_states(X, xs), U, ts)])
-
-        def objective_and_constraints(z, data):
-            params = data.params
-            f, L = fields(params)
-            T, ts, when = clock(z)
-            X, U, starts, Uw = starts_and_windows(z, data)
-            shoot = lambda x, t, u: run_with_cost(f, L, x, t, u)  # noqa: E731
-            xs, costs = jax.vmap(shoot)(starts, when, Uw)
-            return (jnp.sum(costs[:, -1]) + system.terminal_cost(X[-1], T, params),
-                    constraint_rows(X, U, xs, ts, params))
-
-        def objective(z, data):
-            return objective_and_constraints(z, data)[0]
-
-        def constraints(z, data):
-            # Without the cost state: the cheaper rollout when only the rows are wanted.
-            f, _ = fields(data.params)
-            _, ts, when = clock(z)
-            X, U, starts, Uw = starts_and_windows(z, data)
-            xs = jax.vmap(lambda x, t, u: run(f, x, t, u))(starts, when, Uw)
-            return constraint_rows(X, U, xs, ts, data.params)
-
-        def unravel(z, data):
-            f, _ = fields(data.params)
-            _, ts, when = clock(z)
-            X, U, starts, Uw = starts_and_windows(z, data)
-            xs = jax.vmap(lambda x, t, u: run(f, x, t, u))(starts, when, Uw)  # (M, S+1, n)
-            return jnp.asarray(ts), node_states(X, xs), U
-
-        def initial_guess(data):
-            X = guess_states(system, data.x0, shooting_times[1:])
-            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
-                                    jnp.asarray(T_guess)])
-
-        n_path, nz = system.n_path, nX + nU + T_lo.size
-        T_col = np.arange(nX + nU, nz)  # empty for a fixed horizon
-        blocks = []
-        for j in range(M):
-            rows = j * n + np.arange(n)
-            if j > 0:
-                blocks.append((rows, (j - 1) * n + np.arange(n), False))
-            blocks.append((rows, j * n + np.arange(n), True))
-            blocks.append((rows, np.concatenate([nX + (window[j][:, None] * m + np.arange(m)).ravel(), T_col]), False))
-        for r, i in enumerate(fixed):
-            blocks.append((np.array([M * n + r]), np.array([(M - 1) * n + i]), True))
-        first_path = M * n + fixed.size
-        for k in range(N + 1):
-            j, i = min(k // S, M - 1), k - min(k // S, M - 1) * S  # node k is step i of interval j (N: j = M-1, S)
-            rows = first_path + k * n_path + np.arange(n_path)
-            start = [] if j == 0 else [(j - 1) * n + np.arange(n)]  # X_j (x0 is not a decision)
-            end = [(M - 1) * n + np.arange(n)] if k == N else []  # the last node is X_M itself
-            us = nX + (window[j][: i + 1, None] * m + np.arange(m)).ravel()
-            blocks.append((rows, np.concatenate(start + end + [us, T_col]), False))
-
-        x_lo, x_hi = node_state_bounds(system, M)
-        p_lo, p_hi = path_bounds(system, N + 1)
-        return NLP(
-            objective=objective,
-            constraints=constraints,
-            c_lower=np.concatenate([np.zeros(M * n + fixed.size), p_lo]),
-            c_upper=np.concatenate([np.zeros(M * n + fixed.size), p_hi]),
-            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1), T_lo]),
-            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
-            initial_guess=initial_guess,
-            unravel=unravel,
-            jacobian_sparsity=sparsity(blocks),
-            z_scale=np.concatenate([np.tile(sx, M), np.tile(su, N + 1), T_scale]),
-            name=f"{system.name}/multiple_shooting(M={M}, S={S}, {type(integrator).__name__}"
-                 f"{'' if self.grid is None else ', graded'}{', free T' if free else ''})",
-            objective_and_constraints=objective_and_constraints,
-        )
+        return _Transcribed(self, system).nlp()
 
     def sample(self, system, states, controls, final_time=None):
         S = self.steps_per_interval
@@ -264,3 +137,150 @@ class MultipleShooting(AbstractTranscription):
         X = np.asarray(states(times[S::S]), dtype=np.float64)
         U = np.asarray(controls(times), dtype=np.float64)
         return np.concatenate([X.ravel(), U.ravel()] + ([np.array([T])] if system.free_horizon else []))
+
+
+class _Transcribed:
+    """Multiple shooting's NLP for one system: its constants, and its functions as methods over them."""
+
+    def __init__(self, method: MultipleShooting, system: System):
+        self.method, self.system = method, system
+        self.M, self.S = method.intervals, method.steps_per_interval
+        self.N = self.M * self.S
+        self.n, self.m = system.n_states, system.n_controls
+        self.T_fixed = float(system.horizon)
+        self.times, self.h = node_times(method.grid, self.N, self.T_fixed)
+        self.positions = method.positions()
+        self.free = system.free_horizon
+        self.shooting_times = self.times[::self.S]  # shooting nodes t_0..t_M
+        # The control nodes of each interval, (M, S+1).
+        self.window = np.arange(self.M)[:, None] * self.S + np.arange(self.S + 1)[None, :]
+        self.fixed, self.final = final_value_rows(system)
+        self.sx = state_scale(system)
+        self.integrator = method.integrator
+        self.nX, self.nU = self.M * self.n, (self.N + 1) * self.m
+        self.uniform = method.grid is None and not self.free
+
+    def clock(self, z):
+        """(T, node times, each interval's start or nodes): constants, or from the decision T."""
+        if self.free:
+            ts = free_node_times(self.positions, z[-1])[0]
+            return z[-1], ts, ts[self.window]
+        # Each interval's rollout starts from its time (uniform grid: t_j and the step h, as always) or steps
+        # through its own S + 1 nodes (a grid).
+        return self.T_fixed, self.times, jnp.asarray(self.shooting_times[:-1] if self.method.grid is None
+                                                     else self.times[self.window])
+
+    def split(self, z):
+        nX, nU = self.nX, self.nU
+        return jnp.reshape(z[:nX], (self.M, self.n)), jnp.reshape(z[nX : nX + nU], (self.N + 1, self.m))
+
+    def run(self, f, x, ts, u):
+        if self.uniform:
+            return rollout(self.integrator, f, x, ts, self.h, u)
+        return rollout_on(self.integrator, f, x, ts, u)
+
+    def run_with_cost(self, f, L, x, ts, u):
+        if self.uniform:
+            return rollout_with_cost(self.integrator, f, L, x, ts, self.h, u)
+        return rollout_with_cost_on(self.integrator, f, L, x, ts, u)
+
+    def fields(self, params):
+        f = lambda x, u, t: self.system.dynamics(x, u, t, params)  # noqa: E731
+        L = lambda x, u, t: self.system.running_cost(x, u, t, params)  # noqa: E731
+        return f, L
+
+    def starts_and_windows(self, z, data):
+        X, U = self.split(z)
+        starts = jnp.concatenate([jnp.asarray(data.x0)[None], X[:-1]], axis=0)
+        return X, U, starts, U[self.window]
+
+    def node_states(self, X, xs):
+        # Each interval's own start is the node variable; its end is dropped for the next node (any defect
+        # shows as a jump there, not hidden by overwriting the node).
+        return jnp.concatenate([jnp.reshape(xs[:, :self.S], (self.N, self.n)), X[-1:]], axis=0)
+
+    def constraint_rows(self, X, U, xs, ts, params):
+        return jnp.concatenate([((xs[:, -1] - X) / self.sx).ravel(), X[-1, self.fixed] - self.final,
+                                path_rows(self.system, params, self.node_states(X, xs), U, ts)])
+
+    def objective_and_constraints(self, z, data):
+        params = data.params
+        f, L = self.fields(params)
+        T, ts, when = self.clock(z)
+        X, U, starts, Uw = self.starts_and_windows(z, data)
+        shoot = lambda x, t, u: self.run_with_cost(f, L, x, t, u)  # noqa: E731
+        xs, costs = jax.vmap(shoot)(starts, when, Uw)
+        return (jnp.sum(costs[:, -1]) + self.system.terminal_cost(X[-1], T, params),
+                self.constraint_rows(X, U, xs, ts, params))
+
+    def objective(self, z, data):
+        return self.objective_and_constraints(z, data)[0]
+
+    def constraints(self, z, data):
+        # Without the cost state: the cheaper rollout when only the rows are wanted.
+        f, _ = self.fields(data.params)
+        _, ts, when = self.clock(z)
+        X, U, starts, Uw = self.starts_and_windows(z, data)
+        xs = jax.vmap(lambda x, t, u: self.run(f, x, t, u))(starts, when, Uw)
+        return self.constraint_rows(X, U, xs, ts, data.params)
+
+    def unravel(self, z, data):
+        f, _ = self.fields(data.params)
+        _, ts, when = self.clock(z)
+        X, U, starts, Uw = self.starts_and_windows(z, data)
+        xs = jax.vmap(lambda x, t, u: self.run(f, x, t, u))(starts, when, Uw)  # (M, S+1, n)
+        return jnp.asarray(ts), self.node_states(X, xs), U
+
+    def sparsity_blocks(self, n_T: int) -> list:
+        """The Jacobian's structurally non-zero blocks: defects, final values, path rows (``n_T``: 1 with a free
+        final time, whose column every row has, else 0)."""
+        M, S, N, n, m, nX, window = self.M, self.S, self.N, self.n, self.m, self.nX, self.window
+        n_path = self.system.n_path
+        T_col = np.arange(nX + self.nU, nX + self.nU + n_T)  # empty for a fixed horizon
+        blocks = []
+        for j in range(M):
+            rows = j * n + np.arange(n)
+            if j > 0:
+                blocks.append((rows, (j - 1) * n + np.arange(n), False))
+            blocks.append((rows, j * n + np.arange(n), True))
+            blocks.append((rows, np.concatenate([nX + (window[j][:, None] * m + np.arange(m)).ravel(), T_col]), False))
+        for r, i in enumerate(self.fixed):
+            blocks.append((np.array([M * n + r]), np.array([(M - 1) * n + i]), True))
+        first_path = M * n + self.fixed.size
+        for k in range(N + 1):
+            j, i = min(k // S, M - 1), k - min(k // S, M - 1) * S  # node k is step i of interval j (N: j = M-1, S)
+            rows = first_path + k * n_path + np.arange(n_path)
+            start = [] if j == 0 else [(j - 1) * n + np.arange(n)]  # X_j (x0 is not a decision)
+            end = [(M - 1) * n + np.arange(n)] if k == N else []  # the last node is X_M itself
+            us = nX + (window[j][: i + 1, None] * m + np.arange(m)).ravel()
+            blocks.append((rows, np.concatenate(start + end + [us, T_col]), False))
+        return blocks
+
+    def nlp(self) -> NLP:
+        system, M, N, n = self.system, self.M, self.N, self.n
+        arrays = system.arrays()
+        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
+        shooting_times = self.shooting_times
+
+        def initial_guess(data):
+            X = guess_states(system, data.x0, shooting_times[1:])
+            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
+                                    jnp.asarray(T_guess)])
+
+        x_lo, x_hi = node_state_bounds(system, M)
+        p_lo, p_hi = path_bounds(system, N + 1)
+        return NLP(
+            objective=self.objective,
+            constraints=self.constraints,
+            c_lower=np.concatenate([np.zeros(M * n + self.fixed.size), p_lo]),
+            c_upper=np.concatenate([np.zeros(M * n + self.fixed.size), p_hi]),
+            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1), T_lo]),
+            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
+            initial_guess=initial_guess,
+            unravel=self.unravel,
+            jacobian_sparsity=sparsity(self.sparsity_blocks(T_lo.size)),
+            z_scale=np.concatenate([np.tile(self.sx, M), np.tile(control_scale(system), N + 1), T_scale]),
+            name=f"{system.name}/multiple_shooting(M={M}, S={self.S}, {type(self.integrator).__name__}"
+                 f"{'' if self.method.grid is None else ', graded'}{', free T' if self.free else ''})",
+            objective_and_constraints=self.objective_and_constraints,
+        )
