@@ -4,9 +4,11 @@ then the learned model judged on the true system.
     report = run_e2e("cancer_treatment", E2EConfig(model="parametric"))
     report.learned, report.record()["achieved_cost"]
 
-Checkpoints reuse the system-identification format (:mod:`myriad.runtime.sysid.checkpoint`): the learned leaves as
-``theta``, the optimiser state *and the planner's warm state* as ``opt_state``, the history ``(iteration, imitation
-loss, planner KKT residual)``, the expert's identity as the dataset identity, and the configuration's identity
+The iterations run in the learning kit's loop (:func:`~myriad.runtime.learn.loop.train`: its progress meter, its
+non-finite stop and checkpoint schedule, its :class:`~myriad.runtime.learn.loop.Stop` reasons). Checkpoints are the
+kit's (:mod:`myriad.runtime.learn.checkpoint`): the learned leaves as ``theta``, the optimiser state *and the
+planner's warm state* as ``opt_state``, the history ``(iteration, imitation loss, planner KKT residual)``, the
+expert's identity as the dataset identity, and the configuration's identity
 (:meth:`E2EConfig.identity`). A resumed run continues bit for bit on CPU; only ``iterations``, ``checkpoint_every``
 and ``snapshot_every`` may change. The stored plans of the training figure are not checkpointed: after a resume it
 shows the iterations since.
@@ -18,9 +20,7 @@ import dataclasses
 import hashlib
 import math
 import os
-import sys
 import time
-from pathlib import Path
 from typing import Any
 
 import equinox as eqx
@@ -28,8 +28,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..learn import loop
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
-from ..learn.models import NeuralODE, Parametric
+from ..learn.identity import arrays_id, tree_id
+from ..learn.loop import Step, Stop, check_run, checkpoint_path
+from ..learn.models import Parametric, make_model
 from ..loader import load
 from ..solution import Solution, json_number
 from ..solve import solve
@@ -45,8 +48,6 @@ from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
 
-CHECKPOINT = "checkpoint.npz"
-
 
 @dataclasses.dataclass(frozen=True)
 class E2EReport:
@@ -60,8 +61,9 @@ class E2EReport:
         snapshots: ``[(iteration, controls, states), ...]``, plans kept for the training figure.
         counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``,
             ``backtracked``).
-        status: ``"completed"``, ``"non_finite"`` (the run stopped at a non-finite loss or gradient) or ``"stalled"``
-            (backtracking cut the step below ``MIN_STEP_SCALE``: the planner could not solve any nearby model).
+        status: a :class:`~myriad.runtime.learn.loop.Stop`: ``COMPLETED``, ``NON_FINITE`` (the run stopped at a
+            non-finite loss or gradient) or ``STALLED`` (backtracking cut the step below ``MIN_STEP_SCALE``: the
+            planner could not solve any nearby model); the record holds its word.
         compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
         init_seconds: the system-identification fit that started the run (``init="sysid"``), else 0.
     """
@@ -76,7 +78,7 @@ class E2EReport:
     history: list
     snapshots: list
     counts: dict
-    status: str
+    status: Stop
     message: str
     iterations: int
     train_seconds: float
@@ -86,7 +88,7 @@ class E2EReport:
 
     @property
     def converged(self) -> bool:
-        return self.status == "completed" and self.evaluation.converged
+        return self.status is Stop.COMPLETED and self.evaluation.converged
 
     def record(self) -> dict[str, Any]:
         ev = self.evaluation.record()
@@ -97,19 +99,13 @@ class E2EReport:
                 "init": "theta0" if self.init_seconds < 0 else _init_name(self.config),
                 "init_seconds": round(max(self.init_seconds, 0.0), 3),
                 "iterations": self.iterations, "seed": self.config.seed, "counts": self.counts,
-                "compile_count": self.compile_count, "status": self.status, "converged": bool(self.converged),
+                "compile_count": self.compile_count, "status": str(self.status), "converged": bool(self.converged),
                 "message": self.message}
 
 
 def expert_id(expert: Solution, system: System) -> str:
     """A SHA-256 of the expert trajectory and the spec: what a checkpoint's run imitated."""
-    return _arrays_id(f"{system.name}\0{system.spec_sha256}\0", (expert.controls, expert.states))
-
-
-def _model(system: System, config: E2EConfig):
-    if config.model == "parametric":
-        return Parametric(system)
-    return NeuralODE(system, hidden=config.hidden, activation=config.activation)
+    return arrays_id(f"{system.name}\0{system.spec_sha256}\0", (expert.controls, expert.states))
 
 
 def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = None) -> tuple[Any, Any, dict, dict]:
@@ -148,12 +144,59 @@ def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = Non
     return {"model": train_m, "cost": cost}, {"model": frozen_m}, consts, true
 
 
-def _bar(progress: bool | None, total: int, initial: int, desc: str):
-    if not (sys.stderr.isatty() if progress is None else progress):
-        return None
-    from tqdm import tqdm  # lazily: only the progress bar needs it
+class _Imitation:
+    """One run's state and iteration (the learner that :func:`~myriad.runtime.learn.loop.train` drives): the learned
+    leaves, the optimiser and planner states, the frozen part of theta, the history, counts and stored plans."""
 
-    return tqdm(total=total, initial=initial, desc=desc, unit="it", file=sys.stderr, dynamic_ncols=True)
+    unit = "it"
+
+    def __init__(self, program: Program, state: tuple, consts: dict, config: E2EConfig, desc: str):
+        self.program, self.consts, self.config, self.desc = program, consts, config, desc
+        self.train, self.opt_state, self.carry, self.frozen = state
+        self.history, self.counts, self.snapshots = [], dict.fromkeys(USED, 0), []
+        self.snap_every = config.snapshot_every or max(1, config.iterations // 40)
+        self.checkpoint = None  # (path, expert id, configuration id and description) with a checkpoint folder
+
+    def restore(self) -> int:
+        """Continue from the checkpoint; returns its iteration. The frozen part of theta (a Neural ODE's
+        normalisation, set by the fit's data with init="sysid") travels with the optimiser and planner states, so a
+        resume needs no refit."""
+        path, eid, config_id, desc = self.checkpoint
+        ck = load_checkpoint(path, {"theta": self.train, "opt_state": (self.opt_state, self.carry, self.frozen)},
+                             dataset_id=eid, config_id=config_id, config=desc)
+        self.train, (self.opt_state, self.carry, self.frozen), self.history = ck.theta, ck.opt_state, ck.history
+        self.counts.update({k: int(ck.extra.get(k, 0)) for k in USED})
+        return ck.epoch
+
+    def step(self, it: int) -> Step:
+        cfg = self.config
+        reset = jnp.asarray(it > 0 and cfg.reset_every is not None and it % cfg.reset_every == 0)
+        new_train, new_opt, new_carry, m = self.program.iteration(self.train, self.opt_state, self.carry,
+                                                                  self.frozen, self.consts, reset)
+        m = jax.device_get(m)
+        if not bool(m.finite):
+            return Step(Stop.NON_FINITE, f"iteration {it}: the imitation loss or its gradient is not finite (loss "
+                                         f"{float(m.loss)}); stopped with the parameters before it")
+        self.train, self.opt_state, self.carry = new_train, new_opt, new_carry
+        self.history.append((it, float(m.loss), float(m.kkt)))
+        self.counts[USED[int(m.used)]] += 1
+        if it % self.snap_every == 0 or it == cfg.iterations - 1:
+            self.snapshots.append((it, np.asarray(m.controls), np.asarray(m.states)))
+        postfix = (f"loss {float(m.loss):.3e}, solve {int(m.iterations)} it"
+                   + (f", step x{float(m.step_scale):.2g}" if float(m.step_scale) < 1.0 else ""))
+        if float(self.carry.scale) < MIN_STEP_SCALE:  # only backtracking (implicit) cuts the step
+            return Step(Stop.STALLED, f"iteration {it}: the model's planning problem could not be solved after any "
+                                      f"step down to {MIN_STEP_SCALE:g} of the optimiser's (backtracking); stopped "
+                                      f"with the last parameters whose plan converged", postfix)
+        return Step(postfix=postfix)
+
+    def save(self, done: int) -> None:
+        path, eid, config_id, desc = self.checkpoint
+        best = min((h[1] for h in self.history), default=math.inf)
+        save_checkpoint(path, theta=self.train, opt_state=(self.opt_state, self.carry, self.frozen),
+                        key=jax.random.key_data(jax.random.key(self.config.seed)), epoch=done, best_theta=self.train,
+                        best_val=best, history=self.history, dataset_id=eid, config_id=config_id, config=desc,
+                        extra=self.counts)
 
 
 def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(), *, transcription: Any = None,
@@ -179,25 +222,18 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     """
     if not isinstance(config, E2EConfig):
         raise TypeError(f"run_e2e: config must be an E2EConfig, got {type(config).__name__}")
-    if resume and checkpoint_dir is None:
-        raise ValueError("run_e2e: resume=True needs a checkpoint_dir")
-    if progress not in (None, True, False):
-        raise ValueError(f"run_e2e: progress must be None, True or False, got {progress!r}")
+    check_run("run_e2e", resume=resume, checkpoint_dir=checkpoint_dir, progress=progress)
     system = system if isinstance(system, System) else load(system)
     transcription = SingleShooting() if transcription is None else transcription
     if config.soft_state_bounds is not None and not isinstance(transcription, SingleShooting):
         raise ValueError(f"run_e2e: soft_state_bounds needs a SingleShooting transcription, got "
                          f"{type(transcription).__name__}")
-    model = _model(system, config)  # a parametric model refuses a spec without learnable parameters
-    path = None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
+    # A parametric model refuses a spec without learnable parameters, before any work.
+    model = make_model(config.model, system, hidden=config.hidden, activation=config.activation)
+    path = checkpoint_path(checkpoint_dir)
     resuming = resume and path.is_file()
-    train, frozen, consts, true = _learnables(system, model, config, theta0)  # checks theta0 before any work
-    if isinstance(expert, (str, os.PathLike)):
-        expert = expert_from_dataset(expert, system, transcription)
-    if expert is None:
-        expert = solve(system, transcription, Ipopt(), resimulate=False)
-    if not expert.converged:
-        raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
+    learned = _learnables(system, model, config, theta0)  # checks theta0 before any work
+    expert = _expert(system, transcription, expert)
     # Elastic final-state bounds (on request) for the plans solved to tolerance: the implicit solve and the judged
     # plan. The fit and the unrolled planner keep the spec's bounds (its K steps never fail; measured on predator-prey
     # it imitates 70x better on the hard rows, docs/notes/e2e-node.md).
@@ -205,17 +241,8 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     if config.soft_state_bounds is not None:
         rho = config.soft_state_bounds * max(1.0, abs(float(expert.cost)))
         solved = dataclasses.replace(transcription, soft_state_bounds=rho)
-    fitted, start_id, init_seconds = None, None, 0.0
-    if theta0 is not None:
-        start_id, init_seconds = _tree_id(theta0), -1.0  # -1: given, not fitted here
-    elif config.sysid_config() is not None and not resuming:
-        t_init = time.perf_counter()
-        fitted = run_sysid(system, config.sysid_config(), transcription=transcription, progress=progress)
-        init_seconds = time.perf_counter() - t_init
-        if not fitted.converged:
-            raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "
-                             f"{failed(fitted)}")
-        train, frozen, consts, true = _learnables(system, model, config, fitted.theta)
+    (train, frozen, consts, true), start_id, init_seconds = _start(system, model, config, learned, theta0,
+                                                                    transcription, progress, resuming)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])),
                      solved if config.gradient == "implicit" else transcription)
     data0 = _data0(consts, train, frozen, model)
@@ -229,60 +256,54 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     if start_id is not None:  # a given start is part of what fixes the iterates
         desc = {**desc, "theta0": start_id}
         config_id = hashlib.sha256(f"{config_id}\0{start_id}".encode()).hexdigest()
-    eid = expert_id(expert, system)
-    history, counts, start = [], dict.fromkeys(USED, 0), 0
-    # The frozen part of theta (a Neural ODE's normalisation, set by the fit's data with init="sysid") travels with
-    # the optimiser and planner states, so a resume needs no refit.
-    if resuming:
-        ck = load_checkpoint(path, {"theta": train, "opt_state": (opt_state, carry, frozen)}, dataset_id=eid,
-                             config_id=config_id, config=desc)
-        train, (opt_state, carry, frozen), start, history = ck.theta, ck.opt_state, ck.epoch, ck.history
-        counts.update({k: int(ck.extra.get(k, 0)) for k in USED})
-    every = config.checkpoint_every or max(1, config.iterations // 10)
-    snap_every = config.snapshot_every or max(1, config.iterations // 40)
+    run = _Imitation(program, (train, opt_state, carry, frozen), consts, config,
+                     f"{system.name} e2e ({config.model}, {config.gradient})")
+    run.checkpoint = None if path is None else (path, expert_id(expert, system), config_id, desc)
+    start = run.restore() if resuming else 0
+    every = None if path is None else config.checkpoint_every or max(1, config.iterations // 10)
     traces, t0 = TRACES["iteration"], time.perf_counter()
-    status, message, snapshots = "completed", "", []
-    bar = _bar(progress, config.iterations, start, f"{system.name} e2e ({config.model}, {config.gradient})")
-
-    def save(it):
-        save_checkpoint(path, theta=train, opt_state=(opt_state, carry, frozen), key=jax.random.key_data(
-            jax.random.key(config.seed)), epoch=it, best_theta=train, best_val=min((h[1] for h in history),
-                                                                                   default=math.inf),
-            history=history, dataset_id=eid, config_id=config_id, config=desc, extra=counts)
-
-    it = start
-    for it in range(start, config.iterations):
-        reset = jnp.asarray(it > 0 and config.reset_every is not None and it % config.reset_every == 0)
-        new_train, new_opt, new_carry, m = program.iteration(train, opt_state, carry, frozen, consts, reset)
-        m = jax.device_get(m)
-        if not bool(m.finite):
-            status = "non_finite"
-            message = (f"iteration {it}: the imitation loss or its gradient is not finite (loss {float(m.loss)}); "
-                       f"stopped with the parameters before it")
-            break
-        train, opt_state, carry = new_train, new_opt, new_carry
-        history.append((it, float(m.loss), float(m.kkt)))
-        counts[USED[int(m.used)]] += 1
-        if it % snap_every == 0 or it == config.iterations - 1:
-            snapshots.append((it, np.asarray(m.controls), np.asarray(m.states)))
-        if bar is not None:
-            bar.update(1)
-            bar.set_postfix_str(f"loss {float(m.loss):.3e}, solve {int(m.iterations)} it"
-                                + (f", step x{float(m.step_scale):.2g}" if float(m.step_scale) < 1.0 else ""))
-        if path is not None and (it + 1) % every == 0:
-            save(it + 1)
-        it += 1
-        if float(carry.scale) < MIN_STEP_SCALE:  # only backtracking (implicit) cuts the step
-            status = "stalled"
-            message = (f"iteration {it - 1}: the model's planning problem could not be solved after any step down to "
-                       f"{MIN_STEP_SCALE:g} of the optimiser's (backtracking); stopped with the last parameters "
-                       f"whose plan converged")
-            break
-    if bar is not None:
-        bar.close()
-    if path is not None and status == "completed" and it > start and it % every:
-        save(it)
+    status, message = loop.train(run, start=start, end=config.iterations, every=every, progress=progress,
+                                 exhausted=Stop.COMPLETED)
     seconds = time.perf_counter() - t0
+    return _report(system, model, config, run, true, expert, solved, status, message, seconds,
+                   TRACES["iteration"] - traces, init_seconds)
+
+
+def _expert(system: System, transcription: Any, expert: Any) -> Solution:
+    """The expert: given, read from a dataset file, or the true optimum (IPOPT); it must have converged."""
+    if isinstance(expert, (str, os.PathLike)):
+        expert = expert_from_dataset(expert, system, transcription)
+    if expert is None:
+        expert = solve(system, transcription, Ipopt(), resimulate=False)
+    if not expert.converged:
+        raise ValueError(f"{system.name}: the expert (true-model optimum) did not converge: {expert.message}")
+    return expert
+
+
+def _start(system: System, model: Any, config: E2EConfig, learned: tuple, theta0: Any, transcription: Any,
+           progress: bool | None, resuming: bool) -> tuple[tuple, str | None, float]:
+    """Where theta starts: ``(learnables, the given start's identity or None, init seconds)``; a given ``theta0``
+    (init seconds -1: given, not fitted here), else a system-identification fit when ``config.init`` asks for one
+    (not on a resume, whose checkpoint holds the start), else ``learned`` (the guesses) as they are."""
+    if theta0 is not None:
+        return learned, tree_id(theta0), -1.0
+    if config.sysid_config() is None or resuming:
+        return learned, None, 0.0
+    t_init = time.perf_counter()
+    fitted = run_sysid(system, config.sysid_config(), transcription=transcription, progress=progress)
+    init_seconds = time.perf_counter() - t_init
+    if not fitted.converged:
+        raise ValueError(f"{system.name}: the system-identification fit that starts the run failed: "
+                         f"{failed(fitted)}")
+    return _learnables(system, model, config, fitted.theta), None, init_seconds
+
+
+def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true: dict, expert: Solution,
+            solved: Any, status: Stop, message: str, seconds: float, compiles: int,
+            init_seconds: float) -> E2EReport:
+    """Judge the learned model on the true system (:func:`.evaluate.evaluate_learned`) and write the report."""
+    counts, train, frozen, consts = run.counts, run.train, run.frozen, run.consts
+
     unsolved = counts["skipped"] + counts["fallback_unrolled"] + counts["backtracked"]
     if unsolved:
         message = (message + "; " if message else "") + (
@@ -296,27 +317,14 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     if not evaluation.converged:
         message = (message + "; " if message else "") + evaluation.message
     return E2EReport(system=system.name, config=config, model=model, theta=theta, spec_params=spec_params,
-                     learned=learned, true=true, history=history, snapshots=snapshots, counts=counts, status=status,
-                     message=message or evaluation.message, iterations=len(history), train_seconds=seconds,
-                     compile_count=TRACES["iteration"] - traces, evaluation=evaluation, init_seconds=init_seconds)
+                     learned=learned, true=true, history=run.history, snapshots=run.snapshots, counts=counts,
+                     status=status, message=message or evaluation.message, iterations=len(run.history),
+                     train_seconds=seconds, compile_count=compiles, evaluation=evaluation,
+                     init_seconds=init_seconds)
 
 
 def _init_name(config: E2EConfig) -> str:
     return config.init if isinstance(config.init, str) else "sysid"
-
-
-def _tree_id(tree: Any) -> str:
-    """A SHA-256 of a pytree's structure and float64 leaves (a given theta0's identity in checkpoints)."""
-    return _arrays_id(str(jax.tree.structure(tree)), jax.tree.leaves(tree))
-
-
-def _arrays_id(head: str, arrays: Any) -> str:
-    """SHA-256 of ``head`` then each array's shape and little-endian float64 bytes."""
-    h = hashlib.sha256(head.encode())
-    for a in arrays:
-        a = np.ascontiguousarray(np.asarray(a), dtype="<f8")
-        h.update(f"{a.shape}".encode() + a.tobytes())
-    return h.hexdigest()
 
 
 def _data0(consts, train, frozen, model):

@@ -12,7 +12,8 @@ import pytest
 from myriad.runtime import load, solve
 from myriad.runtime.e2e import E2EConfig
 from myriad.runtime.e2e.step import BACKTRACK, USED, Program
-from myriad.runtime.e2e.train import _learnables, _model
+from myriad.runtime.e2e.train import _learnables
+from myriad.runtime.learn.models import make_model
 from myriad.runtime.solvers import InteriorPoint, Ipopt
 from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.transcriptions import SingleShooting
@@ -27,7 +28,7 @@ def program():
     system = load("cancer_treatment")
     expert = solve(system, GRID, Ipopt(), resimulate=False)
     config = E2EConfig(adjoint=Implicit(), implicit_solver=InteriorPoint(), optimizer=1e-2)
-    model = _model(system, config)
+    model = make_model(config.model, system, hidden=config.hidden, activation=config.activation)
     train, frozen, consts, _ = _learnables(system, model, config)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])), GRID)
     prog = Program(model, nlp, config, expert.controls, expert.states)

@@ -11,6 +11,7 @@ from myriad.runtime import load, solve
 from myriad.runtime.cli import main
 from myriad.runtime.e2e import E2EConfig, expert_from_dataset, run_e2e
 from myriad.runtime.learn.dataset import Sampling, make_dataset, save_dataset
+from myriad.runtime.learn.loop import Stop
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.transcriptions import SingleShooting
 
@@ -43,7 +44,7 @@ def test_learning_from_the_file_follows_learning_from_the_solver(recorded):
     config = E2EConfig(iterations=4, reset_every=2)
     from_solver = run_e2e(system, config, transcription=GRID, expert=optimum, progress=False)
     from_file = run_e2e(system, config, transcription=GRID, expert=path, progress=False)
-    assert from_file.status == from_solver.status == "completed"
+    assert from_file.status is from_solver.status is Stop.COMPLETED
     a, b = np.asarray(from_file.history), np.asarray(from_solver.history)
     np.testing.assert_allclose(a[:, 1], b[:, 1], rtol=1e-8)  # the imitation loss, iteration by iteration
     for name, value in from_solver.learned.items():

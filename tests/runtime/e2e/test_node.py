@@ -14,6 +14,7 @@ import pytest
 
 from myriad.runtime import load, solve
 from myriad.runtime.e2e import E2EConfig, run_e2e
+from myriad.runtime.learn.loop import Stop
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.sysid.run import SysidConfig, node_fit_config, run_sysid
@@ -42,7 +43,7 @@ def _run(cancer, config, **kw):
 
 def test_node_e2e_from_a_sysid_fit_learns_to_imitate_the_expert(cancer):
     first = _run(cancer, NODE)
-    assert first.status == "completed" and first.counts["implicit"] == NODE.iterations, first.message
+    assert first.status is Stop.COMPLETED and first.counts["implicit"] == NODE.iterations, first.message
     assert first.compile_count <= 1
     losses = np.asarray([h[1] for h in first.history])
     # The short fit alone plans within ~1 % of the optimum (6e-3 measured); imitating the expert through the planner
@@ -88,7 +89,7 @@ def test_state_and_combined_losses_measure_what_they_say(cancer):
     for loss in ("states", "both"):
         config = dataclasses.replace(NODE, loss=loss, iterations=3, snapshot_every=1)
         report = _run(cancer, config)
-        assert report.status == "completed", report.message
+        assert report.status is Stop.COMPLETED, report.message
         compiles += report.compile_count
         # Each iteration's loss is that of the plan it reports (the model's planned states), against the expert.
         for it, controls, states in report.snapshots:

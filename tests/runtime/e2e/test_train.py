@@ -11,6 +11,7 @@ from myriad.runtime import load, solve
 from myriad.runtime.cli import main
 from myriad.runtime.e2e import E2EConfig, run_e2e
 from myriad.runtime.learn.checkpoint import CheckpointMismatch
+from myriad.runtime.learn.loop import Stop
 from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.solvers.adjoint import Implicit, Unrolled
 from myriad.runtime.transcriptions import SingleShooting
@@ -31,7 +32,7 @@ def _run(cancer, config, **kw):
 
 def test_parametric_e2e_recovers_r_and_delta_and_plans_at_the_optimum(cancer):
     report = _run(cancer, E2EConfig(adjoint=Implicit(), iterations=300))
-    assert report.status == "completed" and report.counts["implicit"] == 300, report.message
+    assert report.status is Stop.COMPLETED and report.counts["implicit"] == 300, report.message
     for name in ("r", "delta"):
         assert abs(report.learned[name] - report.true[name]) <= 0.01 * report.true[name], report.learned
     rec = report.record()
