@@ -195,6 +195,51 @@ def _did_you_mean(key: str, options) -> str:
 def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
     """Parse spec text. Raises :class:`SpecError` pointing at the first problem."""
     r = _Reader(file, text)
+    root = _load_yaml(r, text, file)
+    top = {k: (kn, vn) for k, kn, vn in r.mapping(root, (), TOP_FIELDS, "the spec")}
+    schema = _schema(r, top)
+
+    name_node = top["name"][1]
+    name = r.text(name_node, ("name",), "the system name")
+    title = r.text(top["title"][1], ("title",), "the title")
+    description = r.text(top["description"][1], ("description",), "the description")
+    source = r.text(top["source"][1], ("source",), "the source") if "source" in top else ""
+    parameters = _parameters(r, top["parameters"][1]) if "parameters" in top else []
+    definitions = []
+    if "definitions" in top:
+        for key, kn, vn in r.mapping(top["definitions"][1], ("definitions",), None, "`definitions`"):
+            definitions.append(Named(key, r.loc(kn, ("definitions", key)), r.expr(vn, ("definitions", key))))
+    states = _variables(r, top["states"][1], "states", STATE_FIELDS, "state")
+    controls = _variables(r, top["controls"][1], "controls", CONTROL_FIELDS, "control")
+    dynamics = []
+    dyn_node = top["dynamics"][1]
+    for key, kn, vn in r.mapping(dyn_node, ("dynamics",), None, "`dynamics` (one equation per state)"):
+        dynamics.append(Named(key, r.loc(kn, ("dynamics", key)), r.expr(vn, ("dynamics", key))))
+    sense, running, terminal = _cost(r, top["cost"][1])
+
+    free_horizon = None
+    if isinstance(top["horizon"][1], yaml.MappingNode):
+        free_horizon = parse_schema2.free_horizon(r, top["horizon"][1])
+        horizon = free_horizon.guess
+    else:
+        horizon = r.expr(top["horizon"][1], ("horizon",))
+    path_constraints = (parse_schema2.path_constraints(r, top["path_constraints"][1])
+                        if "path_constraints" in top else ())
+    reference = _reference(r, top["reference"][1]) if "reference" in top else []
+
+    return ProblemSpec(
+        file=file, lines=r.lines, sha256=hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest(),
+        schema=schema, name=name, name_loc=r.loc(name_node, ("name",)), title=title, description=description,
+        source=source, parameters=tuple(parameters), definitions=tuple(definitions), states=tuple(states),
+        controls=tuple(controls), dynamics=tuple(dynamics), dynamics_loc=r.loc(dyn_node, ("dynamics",)),
+        sense=sense, running=running, terminal=terminal, horizon=horizon, reference=tuple(reference),
+        free_horizon=free_horizon, path_constraints=path_constraints,
+    )
+
+
+def _load_yaml(r: _Reader, text: str, file: str) -> yaml.Node:
+    """The document's root node, composed by the safe loader (nothing constructed, no tags); a YAML error, an
+    oversized or empty spec as a :class:`SpecError` at its line and column."""
     if len(text.encode("utf-8", "surrogatepass")) > MAX_SPEC_BYTES:
         raise r.error(f"spec is larger than {MAX_SPEC_BYTES} bytes", Location(file, 1, 1))
     try:
@@ -220,9 +265,11 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
         raise r.error(f"invalid YAML: {_first_line(exc)}", Location(file, 1, 1)) from None
     if root is None:
         raise r.error("the spec is empty; start with `schema: 1`", Location(file, 1, 1))
+    return root
 
-    top = {k: (kn, vn) for k, kn, vn in r.mapping(root, (), TOP_FIELDS, "the spec")}
 
+def _schema(r: _Reader, top: dict) -> int:
+    """The schema version, one this compiler reads, and no field of a later schema in an earlier one."""
     schema_node = top["schema"][1]
     schema = r.scalar(schema_node, ("schema",))
     if isinstance(schema, bool) or not isinstance(schema, int) or schema not in SUPPORTED_SCHEMAS:
@@ -231,90 +278,63 @@ def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
         raise r.error(f"unsupported schema {got}; this compiler reads {versions} (a number)",
                       r.loc(schema_node, ("schema",)))
     parse_schema2.require_schema2(r, schema, top)
+    return schema
 
-    name_node = top["name"][1]
-    name = r.text(name_node, ("name",), "the system name")
-    title = r.text(top["title"][1], ("title",), "the title")
-    description = r.text(top["description"][1], ("description",), "the description")
-    source = r.text(top["source"][1], ("source",), "the source") if "source" in top else ""
 
+def _parameters(r: _Reader, node: yaml.Node) -> list[Parameter]:
     parameters = []
-    if "parameters" in top:
-        for key, kn, vn in r.mapping(top["parameters"][1], ("parameters",), None, "`parameters`"):
-            path = ("parameters", key)
-            if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
-                parameters.append(Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",))))
-                continue
-            f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
-            learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
-            guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
-            if learnable and guess is None:
-                raise r.error(f"learnable parameter `{key}` needs a `guess:` (the starting value for system "
-                              "identification)", r.loc(vn, path))
-            if guess is not None and not learnable:
-                raise r.error("`guess` is only used with `learnable: true`; add `learnable: true` or remove `guess`",
-                              r.loc(f["guess"], path + ("guess",)))
-            parameters.append(Parameter(
-                name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
-                description=(r.text(f["description"], path + ("description",), "a description")
-                             if "description" in f else ""),
-                units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
-                learnable=learnable, guess=guess,
-            ))
+    for key, kn, vn in r.mapping(node, ("parameters",), None, "`parameters`"):
+        path = ("parameters", key)
+        if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
+            parameters.append(Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",))))
+            continue
+        f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
+        learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
+        guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
+        if learnable and guess is None:
+            raise r.error(f"learnable parameter `{key}` needs a `guess:` (the starting value for system "
+                          "identification)", r.loc(vn, path))
+        if guess is not None and not learnable:
+            raise r.error("`guess` is only used with `learnable: true`; add `learnable: true` or remove `guess`",
+                          r.loc(f["guess"], path + ("guess",)))
+        parameters.append(Parameter(
+            name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
+            description=(r.text(f["description"], path + ("description",), "a description")
+                         if "description" in f else ""),
+            units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
+            learnable=learnable, guess=guess,
+        ))
+    return parameters
 
-    definitions = []
-    if "definitions" in top:
-        for key, kn, vn in r.mapping(top["definitions"][1], ("definitions",), None, "`definitions`"):
-            definitions.append(Named(key, r.loc(kn, ("definitions", key)), r.expr(vn, ("definitions", key))))
 
-    states = _variables(r, top["states"][1], "states", STATE_FIELDS, "state")
-    controls = _variables(r, top["controls"][1], "controls", CONTROL_FIELDS, "control")
-
-    dynamics = []
-    dyn_node = top["dynamics"][1]
-    for key, kn, vn in r.mapping(dyn_node, ("dynamics",), None, "`dynamics` (one equation per state)"):
-        dynamics.append(Named(key, r.loc(kn, ("dynamics", key)), r.expr(vn, ("dynamics", key))))
-
-    cost = {k: v for k, _, v in r.mapping(top["cost"][1], ("cost",), COST_FIELDS, "`cost`")}
+def _cost(r: _Reader, node: yaml.Node) -> tuple:
+    """``(sense, running, terminal)`` of the `cost` section (terminal None when absent)."""
+    cost = {k: v for k, _, v in r.mapping(node, ("cost",), COST_FIELDS, "`cost`")}
     sense = r.scalar(cost["sense"], ("cost", "sense"))
     if sense not in SENSES:
         raise r.error(f"`sense` must be `minimize` or `maximize`, got `{_show(str(sense))}`",
                       r.loc(cost["sense"], ("cost", "sense")))
     running = r.expr(cost["running"], ("cost", "running"))
     terminal = r.expr(cost["terminal"], ("cost", "terminal")) if "terminal" in cost else None
+    return sense, running, terminal
 
-    free_horizon = None
-    if isinstance(top["horizon"][1], yaml.MappingNode):
-        free_horizon = parse_schema2.free_horizon(r, top["horizon"][1])
-        horizon = free_horizon.guess
-    else:
-        horizon = r.expr(top["horizon"][1], ("horizon",))
-    path_constraints = (parse_schema2.path_constraints(r, top["path_constraints"][1])
-                        if "path_constraints" in top else ())
 
+def _reference(r: _Reader, node: yaml.Node) -> list[tuple[str, object]]:
+    """The `reference` section's ``(key, value)`` pairs: a text note and finite numbers (minimisation form)."""
     reference = []
-    if "reference" in top:
-        for key, _, vn in r.mapping(top["reference"][1], ("reference",), REFERENCE_FIELDS, "`reference`"):
-            value = r.scalar(vn, ("reference", key))
-            if key == "note":
-                if not isinstance(value, str):
-                    raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
-                r.valid_unicode(value, vn, ("reference", key))
-            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
-                              r.loc(vn, ("reference", key)))
-            else:
-                value = float(value)
-            reference.append((key, value))
-
-    return ProblemSpec(
-        file=file, lines=r.lines, sha256=hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest(),
-        schema=schema, name=name, name_loc=r.loc(name_node, ("name",)), title=title, description=description,
-        source=source, parameters=tuple(parameters), definitions=tuple(definitions), states=tuple(states),
-        controls=tuple(controls), dynamics=tuple(dynamics), dynamics_loc=r.loc(dyn_node, ("dynamics",)),
-        sense=sense, running=running, terminal=terminal, horizon=horizon, reference=tuple(reference),
-        free_horizon=free_horizon, path_constraints=path_constraints,
-    )
+    for key, _, vn in r.mapping(node, ("reference",), REFERENCE_FIELDS, "`reference`"):
+        value = r.scalar(vn, ("reference", key))
+        if key == "note":
+            if not isinstance(value, str):
+                raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
+            r.valid_unicode(value, vn, ("reference", key))
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
+                          r.loc(vn, ("reference", key)))
+        else:
+            value = float(value)
+        reference.append((key, value))
+    return reference
 
 
 def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool], kind: str) -> list[Variable]:
