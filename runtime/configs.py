@@ -207,9 +207,17 @@ def _nested(hint: Any, start: Any, values: dict[str, Any]) -> Any:
 
 
 def _dataclasses_of(hint: Any) -> list[type]:
+    """The config classes a value of ``hint`` may be: the annotated ones (a union's members, first), then their
+    concrete subclasses (an abstract base's, e.g. the integrators)."""
     hint, _ = _options(hint)
-    candidates = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
-    return [c for c in candidates if dataclasses.is_dataclass(c)]
+    declared = typing.get_args(hint) if typing.get_origin(hint) in (typing.Union, types.UnionType) else (hint,)
+    found, todo = [], [c for c in declared if isinstance(c, type) and c.__module__ != "builtins"]
+    while todo:
+        c = todo.pop(0)
+        if c not in found:
+            found.append(c)
+            todo += c.__subclasses__()
+    return [c for c in found if dataclasses.is_dataclass(c) and not inspect.isabstract(c)]
 
 
 def _word(cls: type) -> str | None:

@@ -213,6 +213,12 @@ def test_the_mechanism_on_tuples_enums_literals_and_nested_configs():
     assert to_json(Outer()) == {"widths": [2, 3], "colour": "red", "shade": "dark", "inner": {"rate": 1.0},
                                 "opt": None, "way": {"type": "fast", "steps": None}}
     assert build(Outer, to_json(Outer(way=Slow(5)))) == Outer(way=Slow(5))  # the JSON reads back
+    from myriad.runtime.integrators import RK4
+    from myriad.runtime.learn.dataset import Sampling
+
+    # A word names a concrete subclass of an abstract annotation (Sampling.integrator: AbstractIntegrator).
+    assert build(Sampling, {"integrator": "rk4"}).integrator == RK4()
+    assert build(Sampling, to_json(Sampling(integrator=RK4()))) == Sampling(integrator=RK4())
     with pytest.raises(ValueError) as info:
         build(Outer, {"inner.rate": -1})
     assert usage_message(info.value, Outer) == "--set inner.rate must be > 0, got -1"
