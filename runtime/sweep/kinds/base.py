@@ -67,9 +67,7 @@ class AbstractKind(abc.ABC):
         Raises:
             ValueError: a bad value, prefixed with the kind's name.
         """
-        # A setting at its default's JSON is left to the config (an object such as an integrator reads back from
-        # its JSON only by name).
-        given = {k: v for k, v in settings.items() if v != to_json(defaults(self.Settings).get(k))}
+        given = dict(settings)
         if any(f.name == "seed" for f in dataclasses.fields(self.Settings)):
             given["seed"] = seed
         try:
