@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from .._command_args import add_training_outputs, first_error, usage
+from ..learn.models import MODELS
 
 __all__ = ["add_parser", "run"]
 
@@ -19,7 +20,7 @@ __all__ = ["add_parser", "run"]
 def add_parser(sub) -> None:
     s = sub.add_parser("e2e", help="end-to-end learning: imitate the true optimum through the planner (Algorithm 2)")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--model", choices=["parametric", "node"], default="parametric",
+    s.add_argument("--model", choices=list(MODELS), default="parametric",
                    help="the spec's learnable parameters, or a Neural ODE (default: parametric)")
     s.add_argument("--gradient", choices=["unrolled", "implicit"], default="unrolled",
                    help="reverse mode through K planner steps, or the implicit function theorem at a converged plan")

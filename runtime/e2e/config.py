@@ -11,13 +11,14 @@ from typing import Any
 import numpy as np
 
 from ..learn.identity import describe
+from ..learn.models import MODELS as _REGISTRY
 from ..solvers.adjoint import Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
 
 __all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
 
-MODELS = ("parametric", "node")
+MODELS = tuple(_REGISTRY)  # the learning kit's model names (one spelling each)
 INITS = ("guess", "sysid")
 GRADIENTS = ("unrolled", "implicit")
 LOSSES = ("controls", "states", "both")
@@ -122,10 +123,10 @@ class E2EConfig:
                 raise ValueError(f"E2EConfig({name}={getattr(self, name)!r}): expected one of {allowed}")
         adj = adjoint(self.adjoint)
         if adj.unroll is None:
-            adj = adj.with_unroll(10 if self.model == "parametric" else 5)
+            adj = adj.with_unroll(_REGISTRY[self.model].default_unroll)
         object.__setattr__(self, "adjoint", adj)
         if self.reaim is None:
-            object.__setattr__(self, "reaim", 0 if self.model == "parametric" else 6)
+            object.__setattr__(self, "reaim", _REGISTRY[self.model].default_reaim)
         for name, low, optional in (("iterations", 1, False), ("reset_every", 1, True),
                                     ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False),
                                     ("reaim", 0, False)):
