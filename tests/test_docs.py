@@ -91,6 +91,7 @@ def test_readme_command_options_exist(capsys):
     assert not wrong, f"README.md uses options the commands do not have: {wrong}"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(importlib.util.find_spec("mkdocs") is None, reason="mkdocs is not installed (the docs extra)")
 def test_site_builds_strict(tmp_path):
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")

@@ -4,6 +4,8 @@ import subprocess
 import sys
 import tomllib
 
+import pytest
+
 from .helpers import ROOT
 
 
@@ -28,6 +30,7 @@ def test_compiler_does_not_import_jax():
     assert "jax" not in _imports_after("import myriad.compiler, myriad.compiler.cli")
 
 
+@pytest.mark.slow
 def test_runtime_does_not_import_sympy():
     mods = _imports_after("import myriad.runtime; from myriad.runtime import systems; systems.get('pendulum')")
     assert "sympy" not in mods and "jax" in mods

@@ -19,6 +19,8 @@ import pytest
 
 from .helpers import ROOT
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: builds a wheel and installs it into a fresh venv
+
 DIST = "myriad_control"  # the distribution name, normalised as in the wheel's file name
 SOURCES = ("pyproject.toml", "README.md", "compiler", "runtime", "specs")
 # What the package needs at run time besides code: templates, shipped specs, JSON data (e.g. reference scores).

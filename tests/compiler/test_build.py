@@ -54,6 +54,7 @@ def _digest(folder):
     return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.glob("*.py"))}
 
 
+@pytest.mark.slow
 def test_builds_are_byte_identical_across_processes(tmp_path):
     # Different hash seeds change set and dict iteration in sympy; the output must not change.
     digests = []

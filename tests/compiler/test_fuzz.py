@@ -86,6 +86,7 @@ YAMLISH = [
 yamlish_text = st.lists(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=8)), max_size=40).map("".join)
 
 
+@pytest.mark.slow
 @fuzz(400)
 @given(st.one_of(st.text(max_size=300), yamlish_text))
 def test_arbitrary_text_raises_only_spec_errors(text):
@@ -103,6 +104,7 @@ def test_mutated_valid_spec_raises_only_spec_errors(data):
     _compile(base[:start] + fragment + base[end:])
 
 
+@pytest.mark.slow
 @fuzz(200)
 @given(st.data())
 def test_mutated_schema2_spec_raises_only_spec_errors(data):
@@ -168,6 +170,7 @@ def _yaml_scalar(expr: str, style: str) -> str:
     return json.dumps(expr)  # a JSON string is a YAML double-quoted scalar
 
 
+@pytest.mark.slow
 @fuzz(400)
 @given(expressions, st.sampled_from(["plain", "single", "double"]))
 def test_grammar_expressions_compile_or_raise_spec_error(expr, style):

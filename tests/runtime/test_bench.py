@@ -3,6 +3,7 @@
 import dataclasses
 
 import numpy as np
+import pytest
 
 from myriad.runtime.bench import BenchRow, _best, markdown_table, meets_target
 from myriad.runtime.solve import Solution
@@ -61,6 +62,7 @@ def test_resample_puts_a_solution_on_another_grid():
     np.testing.assert_allclose(np.asarray(controls)[:, 0], np.sin(np.asarray(times)), atol=1e-4)
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_rows_of_one_process_in_order():
     """Two spawned workers (what a first `myriad bench` on two cores uses) return the same rows, in the order asked,
     as solving in this process."""

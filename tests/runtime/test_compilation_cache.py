@@ -9,6 +9,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 from myriad.runtime.compilation.jax_cache import DEFAULT_CACHE_DIR, ENV_VAR, compilation_cache_dir
 
 # A fresh interpreter (JAX reads the cache folder once per process) that configures JAX as the `myriad` command line
@@ -52,6 +54,7 @@ def test_folder_resolution(monkeypatch, tmp_path):
         assert compilation_cache_dir() is None
 
 
+@pytest.mark.slow
 def test_second_process_reuses_the_cache(tmp_path):
     folder = tmp_path / "jax"
     first = _child("solve", "van_der_pol", "--cache-dir", str(folder))
@@ -64,6 +67,7 @@ def test_second_process_reuses_the_cache(tmp_path):
     assert second["value"] == first["value"]
 
 
+@pytest.mark.slow
 def test_no_cache_leaves_jax_without_a_folder(tmp_path):
     result = _child("solve", "van_der_pol", "--no-cache", env={ENV_VAR: str(tmp_path / "jax")})
     assert result["dir"] is None and result["hits"] == 0

@@ -182,6 +182,7 @@ def test_simulate_heun_gradients():
     check_grads(f, (data.params, data.x0), order=1, modes=("fwd", "rev"), eps=EPS, rtol=RTOL, atol=ATOL)
 
 
+@pytest.mark.slow
 def test_simulate_adaptive_reverse_mode():
     """The adaptive (diffrax) integrator differentiates in reverse mode; its tolerance (rtol 1e-8) limits agreement
     with finite differences to about 1e-7 relative (measured below 6e-8 here), hence the looser rtol."""

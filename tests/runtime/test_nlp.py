@@ -32,6 +32,7 @@ def _random_point(nlp, data, rng):
     return np.clip(z, lo, hi)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("transcription", list(FUSED), ids=list(FUSED))
 @pytest.mark.parametrize("name", SYSTEMS)
 def test_fused_evaluation_matches_objective_and_constraints(name, transcription):
@@ -71,6 +72,7 @@ def test_evaluate_falls_back_to_separate_calls():
     np.testing.assert_array_equal(c, nlp.constraints(z, data))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rocket_landing", "bacteria"])
 def test_checkpointed_rollout_has_the_same_values_and_derivatives(name):
     system = load(name)

@@ -127,6 +127,7 @@ _CHILD = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["ipopt", "interior_point"])
 def test_a_second_process_traces_nothing(tmp_path, solver):
     def child():

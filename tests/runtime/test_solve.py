@@ -74,6 +74,7 @@ def test_infeasible_problem_is_never_a_success(solver):
     assert sol.message
 
 
+@pytest.mark.slow
 def test_published_setting_meets_targets_on_a_subset():
     # The full 18-system table runs in `myriad bench`; here a few quick ones, against the published targets.
     for name in ("simple_case", "van_der_pol", "mould_fungicide", "bacteria"):
@@ -85,6 +86,7 @@ def test_published_setting_meets_targets_on_a_subset():
         assert max((abs(d) for d in sol.defect), default=0.0) <= 1e-6
 
 
+@pytest.mark.slow
 def test_transcriptions_agree_on_a_lenhart_system():
     system = load("cancer_treatment")
     costs = {}
@@ -147,6 +149,7 @@ def test_default_data_is_host_arrays_and_device_arrays_reuse_its_program():
     np.testing.assert_array_equal(host.controls, device.controls)
 
 
+@pytest.mark.slow
 def test_solve_batch_matches_single_solves():
     system = load("mould_fungicide")
     tr = Trapezoidal(intervals=20)

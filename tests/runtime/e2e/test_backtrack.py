@@ -19,6 +19,8 @@ from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: end-to-end learning runs through failing solves
+
 jax.config.update("jax_enable_x64", True)
 GRID = SingleShooting(intervals=50)
 

@@ -15,6 +15,8 @@ from myriad.runtime.learn.loop import Stop
 from myriad.runtime.solvers import Ipopt
 from myriad.runtime.transcriptions import SingleShooting
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: end-to-end learning from a recorded expert
+
 GRID = SingleShooting(intervals=50)
 AROUND = Sampling(controls="around", spread=0.0, x0_std=0.0, intervals=50)
 

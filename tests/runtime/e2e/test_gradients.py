@@ -21,6 +21,8 @@ from myriad.runtime.solvers.interior_point import InteriorPoint
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: unrolled and implicit gradients through whole solves
+
 # A coarser grid than the published 100 keeps the programs small (20 is too coarse: Heun steps of 1 drive the tumour
 # density negative at the guesses, where log(1/x) is NaN).
 GRID = SingleShooting(intervals=50)

@@ -20,6 +20,8 @@ from myriad.runtime.solvers.adjoint import Implicit
 from myriad.runtime.sysid.run import SysidConfig, node_fit_config, run_sysid
 from myriad.runtime.transcriptions import SingleShooting
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: the Neural ODE fit every test starts from
+
 GRID = SingleShooting(intervals=50)
 WIDTH = (16, 16)
 FIT = SysidConfig(model="node", hidden=WIDTH, rounds=1, polish=None, fit=node_fit_config(150))

@@ -16,6 +16,8 @@ from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.solvers.adjoint import Implicit, Unrolled
 from myriad.runtime.transcriptions import SingleShooting
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: whole end-to-end learning runs
+
 GRID = SingleShooting(intervals=50)  # the published 100 in bench/e2e_table.py; 50 keeps this file's programs small
 
 

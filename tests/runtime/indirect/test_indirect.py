@@ -32,6 +32,7 @@ def _assert_same(batched: SweepResult, single: SweepResult, atol: float = 1e-12)
         np.testing.assert_allclose(getattr(batched, name), getattr(single, name), rtol=0, atol=atol, err_msg=name)
 
 
+@pytest.mark.slow
 def test_solve_batch_over_parameters_equals_one_by_one_solves():
     # Stationary u*: relaxed sweeps, then Newton (GMRES inside the vmapped while loop).
     system, sweep = ScalarLQ(), ForwardBackwardSweep(intervals=50)
@@ -44,6 +45,7 @@ def test_solve_batch_over_parameters_equals_one_by_one_solves():
     assert len({b.cost for b in batch}) == len(qs)  # the members really differ
 
 
+@pytest.mark.slow
 def test_solve_batch_over_initial_states_with_broyden_shooting():
     # Fixed final states without Newton: Broyden's iteration on lambda(T) around converged sweeps, per member.
     system, sweep = DoubleIntegrator(), ForwardBackwardSweep(intervals=40, newton=False)
@@ -80,6 +82,7 @@ def test_the_sweep_refuses_an_nlp_solver():
         solve_batch(system, sweep, Extragradient(), params={"q": np.array([1.0, 2.0])})
 
 
+@pytest.mark.slow
 def test_solve_batch_gives_each_member_its_own_status():
     # q = 110 makes the relaxed sweep stiff (omega must fall to ~0.016, ~1300 sweeps): with 200 sweeps it stops at
     # the iteration limit while q = 1 converges, in the same vmapped loop.

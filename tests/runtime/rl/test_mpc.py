@@ -30,6 +30,7 @@ def nominal():
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", CHEAP)
 def test_nominal_mpc_reaches_the_open_loop_optimum(nominal, name):
     env, _, ep = nominal[name]
@@ -83,6 +84,7 @@ def test_disturbed_episodes_are_seeded_and_share_the_compiled_planner(nominal):
     assert normalized_score("van_der_pol", wrong.cost) < normalized_score("van_der_pol", nominal["van_der_pol"][2].cost)
 
 
+@pytest.mark.slow
 def test_constraint_terminal_meets_the_final_values():
     env = reference_env(load("van_der_pol"))
     ep = MPC(env, replan_every=25, terminal="constraint").run(env.default_params())

@@ -13,6 +13,7 @@ from myriad.runtime.systems import NAMES
 from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS
 
 
+@pytest.mark.slow
 def test_reference_scores_are_fresh_for_every_shipped_system():
     doc = reference_scores()
     assert list(doc["systems"]) == list(NAMES)

@@ -20,6 +20,8 @@ from myriad.runtime.solvers import Extragradient, Ipopt
 from myriad.runtime.transcriptions import Trapezoidal, default_data
 from myriad.runtime.transcriptions.nlp_parts import guess_controls
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: extragradient solves of hundreds of thousands of iterations
+
 TRANSCRIPTION = Trapezoidal(intervals=50)
 
 

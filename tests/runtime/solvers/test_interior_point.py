@@ -23,6 +23,8 @@ from myriad.runtime.solvers.base import canonical_data
 from myriad.runtime.solvers.interior_point.solver import CPU_CHUNK
 from myriad.runtime.status import Status
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: interior-point solves, batches and implicit gradients
+
 jax.config.update("jax_enable_x64", True)
 
 INF = np.inf

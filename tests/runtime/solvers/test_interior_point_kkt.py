@@ -30,6 +30,7 @@ def _reduced_min_eigenvalue(hess, sigma, jac):
     return np.linalg.eigvalsh(z.T @ (np.asarray(hess) + np.diag(np.asarray(sigma))) @ z).min()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("negative", [0.1, 50.0])
 def test_nullspace_step_solves_the_kkt_system(negative):
     n, m = 30, 20
@@ -63,6 +64,7 @@ def test_a_rank_deficient_jacobian_falls_back_to_the_certificate():
     np.testing.assert_allclose(jac @ dx, r2, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_hiv_treatment_on_collocation_converges_like_ipopt():
     # Before the null-space method: the 3000-iteration limit at -818.878, the certificate having grown delta_w to
     # 1e2-1e4 where the reduced Hessian needed 0-1.

@@ -26,6 +26,8 @@ from myriad.runtime.status import Status
 from myriad.runtime.transcriptions import HermiteSimpson, MultipleShooting, Trapezoidal
 from myriad.runtime.transcriptions.base import transcribe
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: restoration-phase solves on three transcriptions
+
 jax.config.update("jax_enable_x64", True)
 
 INF = np.inf

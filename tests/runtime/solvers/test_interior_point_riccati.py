@@ -26,6 +26,8 @@ from myriad.runtime.solvers.interior_point.rules import CHECK_COND, condition_bo
 from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: every test compiles Riccati and dense KKT programs
+
 jax.config.update("jax_enable_x64", True)
 
 

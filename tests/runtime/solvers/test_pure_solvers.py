@@ -112,6 +112,7 @@ def test_solve_batch_refuses_a_solver_that_is_not_pure(solver):
         assert label in message, message
 
 
+@pytest.mark.slow
 def test_batch_members_have_their_own_status():
     """One batch, three outcomes: a member that converges, one that hits the iteration limit and one with non-finite
     data. The limit is set between the two finite members' iteration counts, measured on the same batch first."""

@@ -199,6 +199,7 @@ def test_cli_prints_one_table_and_writes_json_csv_markdown(serial_records, capsy
     assert len(list(csv.DictReader(io.StringIO(c.read_text())))) == 8
 
 
+@pytest.mark.slow
 def test_process_backend_gives_the_serial_records(serial_records, tmp_path):
     cache = tmp_path / "jax-cache"
     recs = run_sweep(_config(str(cache)), ProcessBackend(workers=2))
@@ -258,6 +259,7 @@ def ray_address(monkeypatch):
         shutil.rmtree(temp, ignore_errors=True)
 
 
+@pytest.mark.slow
 def test_ray_backend_on_a_real_local_cluster_gives_the_serial_records(serial_records, ray_address, tmp_path):
     import ray
 

@@ -17,6 +17,8 @@ from myriad.runtime.status import Status
 from myriad.runtime.sysid import least_squares as ls_module
 from myriad.runtime.sysid.least_squares import LeastSquaresResult, least_squares
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: least-squares fits of shipped systems
+
 N = 50  # a coarser grid than the published 100 keeps the suite fast; the data and the fit use the same one
 
 

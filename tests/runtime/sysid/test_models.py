@@ -197,6 +197,7 @@ def test_neural_ode_trainable_mask_freezes_norm(cancer):
     assert changed == [True] * 4 + [False] * 6  # net, then norm
 
 
+@pytest.mark.slow
 def test_neural_ode_learned_system(cancer):
     model = NeuralODE(cancer, hidden=(8, 8))
     theta = model.init_params(jax.random.PRNGKey(0))

@@ -16,6 +16,8 @@ from myriad.runtime.sysid.fit import FitConfig, fit
 from myriad.runtime.sysid.polish import PolishConfig, polish
 from myriad.runtime.sysid.run import SysidConfig, run_sysid
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: L-BFGS fits of Neural ODEs
+
 N = 20
 
 

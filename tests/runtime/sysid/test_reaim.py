@@ -22,6 +22,7 @@ def wrong():
     return model, {"a": jnp.asarray(0.99)}
 
 
+@pytest.mark.slow
 def test_an_aimed_system_plans_to_the_shifted_final_values_and_is_another_problem(wrong):
     model, theta = wrong
     aim = np.array([0.05, -0.02])
@@ -38,6 +39,7 @@ def test_an_aimed_system_plans_to_the_shifted_final_values_and_is_another_proble
         model.as_system(theta, [0.1, np.nan])
 
 
+@pytest.mark.slow
 def test_reaiming_meets_the_true_final_values_that_the_plan_missed(wrong):
     model, theta = wrong
     first = evaluate(model, theta)
@@ -51,6 +53,7 @@ def test_reaiming_meets_the_true_final_values_that_the_plan_missed(wrong):
     assert "kept plan" in out.message and out.record()["kept"] == out.kept
 
 
+@pytest.mark.slow
 def test_reaiming_keeps_the_plan_when_nothing_is_required_at_the_end():
     model = Parametric(load("bioreactor"))  # no required final values
     theta = model.init_params()
@@ -83,6 +86,7 @@ def test_cli_refuses_a_negative_reaim_before_work(capsys):
     assert "reaim must be an integer >= 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_end_to_end_evaluation_re_aims_with_the_learned_parameters(wrong):
     from myriad.runtime.e2e.config import E2EConfig
     from myriad.runtime.e2e.evaluate import evaluate_learned

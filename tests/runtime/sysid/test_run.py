@@ -6,12 +6,15 @@ import json
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from myriad.runtime import load
 from myriad.runtime.cli import main
 from myriad.runtime.learn.evaluate import evaluate
 from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid.run import SysidConfig, run_sysid
+
+pytestmark = pytest.mark.slow  # not in `make test-fast`: whole system-identification runs and the CLI
 
 RECORD_KEYS = ("system", "model", "learned", "true", "standard_errors", "achieved_cost", "achieved_defect",
                "optimal_cost", "optimal_defect", "train_seconds", "seed", "converged")

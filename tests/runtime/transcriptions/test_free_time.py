@@ -140,6 +140,7 @@ def test_minimum_time_double_integrator_hermite_simpson(min_time):
     np.testing.assert_allclose(sol.states[-1], [1.0, 0.0], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_minimum_time_double_integrator_trapezoidal_with_mesh_refinement(min_time):
     """Trapezoidal's linear control needs a ramp across the switch, which costs O(h^2) in T (2.02 on 10 intervals):
     mesh refinement (grid in tau, T carried over by the warm start) reaches T* = 2 to 1e-5 (measured 1.7e-6)."""

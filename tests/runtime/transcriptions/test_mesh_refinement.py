@@ -213,6 +213,7 @@ def hyper():
     return system, solve(system, HermiteSimpson(intervals=50), tolerance=TOL)
 
 
+@pytest.mark.slow
 def test_refinement_reaches_the_published_hypersensitive_optimum(hyper):
     system, sol = hyper
     r = sol.refinement
@@ -235,6 +236,7 @@ def test_refinement_reaches_the_published_hypersensitive_optimum(hyper):
     assert [lv["intervals"] for lv in record["refinement"]["history"]] == intervals
 
 
+@pytest.mark.slow
 def test_without_refinement_the_cli_warns(hyper, capsys, tmp_path):
     # The same 50-interval grid as the first level above (its compiled code is reused).
     out = tmp_path / "coarse.json"
@@ -247,6 +249,7 @@ def test_without_refinement_the_cli_warns(hyper, capsys, tmp_path):
     assert abs(rec["simulated_defect"][0]) > 1e-3  # the re-simulated final value misses x(T) = 1.5
 
 
+@pytest.mark.slow
 def test_a_refinement_limit_is_reported_never_success(hyper, capsys, tmp_path):
     system, _ = hyper
     sol = solve(system, HermiteSimpson(intervals=50), tolerance=TOL, max_intervals=100, resimulate=False)

@@ -25,6 +25,7 @@ def lq():
     return load(SPECS / "scalar_lq.yaml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list(METHODS))
 def test_on_grid_is_the_same_control_grid_for_every_method(lq, name):
     sol = solve(lq, METHODS[name].on_grid(20), resimulate=False)

@@ -79,6 +79,7 @@ def _bryson_denham_solution():
 @pytest.mark.parametrize("method", [SingleShooting(intervals=100), MultipleShooting.on_grid(20),
                                     Trapezoidal(intervals=200), HermiteSimpson(intervals=20)],
                          ids=lambda m: m.label)
+@pytest.mark.slow
 def test_bryson_denham_optimum_with_the_wall_met_at_every_node(bryson_denham, method):
     sol = solve(bryson_denham, method, Ipopt(), resimulate=False)
     assert sol.converged
@@ -106,6 +107,7 @@ def test_path_rows_come_last_point_major_and_scaled(bryson_denham):
         assert not np.any(np.isinf(nlp.c_lower[:-points]))  # the rows before are the equalities (and none else here)
 
 
+@pytest.mark.slow
 def test_rayleigh_mixed_constraint_at_every_node_and_midpoint(tmp_path):
     spec = tmp_path / "rayleigh_mixed.yaml"
     spec.write_text(_RAYLEIGH)
@@ -118,6 +120,7 @@ def test_rayleigh_mixed_constraint_at_every_node_and_midpoint(tmp_path):
     assert np.sum(g > -1e-6) >= 5  # an active arc, not a constraint that happens to be slack
 
 
+@pytest.mark.slow
 def test_keep_out_disc_in_free_time_agrees_with_casadi_on_the_same_grid():
     pytest.importorskip("casadi")
     from myriad.compiler.casadi_export import export_file
@@ -137,6 +140,7 @@ def test_keep_out_disc_in_free_time_agrees_with_casadi_on_the_same_grid():
     assert disc.min() >= 0.25 - 1e-9 and disc.min() <= 0.25 + 1e-6  # the disc is touched, never entered
 
 
+@pytest.mark.slow
 def test_slsqp_and_extragradient_respect_the_rows_and_agree_with_ipopt(bryson_denham):
     reference = solve(bryson_denham, Trapezoidal(intervals=20), Ipopt(tol=1e-10), resimulate=False)
     slsqp = solve(bryson_denham, Trapezoidal(intervals=20), SLSQP(), resimulate=False)

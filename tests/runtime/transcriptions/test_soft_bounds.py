@@ -17,6 +17,8 @@ from myriad.runtime.solvers.interior_point import InteriorPoint
 from myriad.runtime.transcriptions import MultipleShooting, SingleShooting
 from myriad.runtime.transcriptions.nominal_scales import state_scale
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: interior-point and IPOPT solves of every bounded spec
+
 jax.config.update("jax_enable_x64", True)
 SPECS = Path(__file__).parent.parent / "specs"
 

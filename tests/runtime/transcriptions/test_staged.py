@@ -21,6 +21,8 @@ from myriad.runtime.transcriptions import SingleShooting
 from myriad.runtime.transcriptions.base import transcribe
 from myriad.runtime.transcriptions.staged import staged_derivatives
 
+pytestmark = pytest.mark.slow  # not in `make test-fast`: Hessians and interior-point solves, both ways
+
 SCHEMA2 = "tests/compiler/schema2"
 
 
