@@ -38,14 +38,7 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
     states = tuple(sympy.Symbol(s.name, real=True) for s in spec.states)
     controls = tuple(sympy.Symbol(c.name, real=True) for c in spec.controls)
 
-    # Parameter values may use earlier parameters (their values), so evaluate in order.
-    const_ns: dict = {}
-    param_values = []
-    for p, sym in zip(spec.parameters, params):
-        parser = ExpressionParser(const_ns, lines, "a parameter value may use only numbers, pi and earlier parameters")
-        value = _constant(parser, p.value, finite=True)
-        const_ns[p.name] = sympy.Rational(fractions.Fraction(value))
-        param_values.append(value)
+    const_ns, param_values = _parameter_values(spec)
     numeric_params = {sym: sympy.Rational(fractions.Fraction(v)) for sym, v in zip(params, param_values)}
 
     # Definitions: inline in order; a definition may use any earlier definition (no cycles by construction).
@@ -110,6 +103,20 @@ def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
         structural_params=structural, horizon_bounds=horizon_bounds, path=path, path_lower=path_lower,
         path_upper=path_upper,
     )
+
+
+def _parameter_values(spec: ProblemSpec) -> tuple[dict, list[float]]:
+    """The parameters' values, evaluated in order (a value may use earlier parameters), and the namespace of exact
+    rationals that constant fields are evaluated in."""
+    const_ns: dict = {}
+    param_values = []
+    for p in spec.parameters:
+        parser = ExpressionParser(const_ns, spec.lines,
+                                  "a parameter value may use only numbers, pi and earlier parameters")
+        value = _constant(parser, p.value, finite=True)
+        const_ns[p.name] = sympy.Rational(fractions.Fraction(value))
+        param_values.append(value)
+    return const_ns, param_values
 
 
 def _path_expression(parser: ExpressionParser, e: Expr):
