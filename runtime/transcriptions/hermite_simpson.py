@@ -124,10 +124,6 @@ class HermiteSimpson(AbstractTranscription):
             xms = 0.5 * (xs[:-1] + xs[1:]) + (column(hs) / 8.0) * (fs[:-1] - fs[1:])
             return xs, us, ums, xms, fs, f(xms, ums, tms)
 
-        def interleave(nodes, mids):
-            both = jnp.concatenate([nodes[:-1, None], mids[:, None]], axis=1)  # (N, 2, d)
-            return jnp.concatenate([jnp.reshape(both, (2 * N, -1)), nodes[-1:]], axis=0)
-
         def objective(z, data):
             params = data.params
             L = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))
@@ -142,44 +138,21 @@ class HermiteSimpson(AbstractTranscription):
             _, ts, tms, hs = clock(z)
             xs, us, ums, xms, fs, fms = collocate(z, data)
             defects = (xs[1:] - xs[:-1] - (column(hs) / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / sx
-            half = interleave(ts[:, None], tms[:, None])[:, 0]
-            path = path_rows(system, data.params, interleave(xs, xms), interleave(us, ums), half)
+            half = _interleave(ts[:, None], tms[:, None])[:, 0]
+            path = path_rows(system, data.params, _interleave(xs, xms), _interleave(us, ums), half)
             return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final, path])
 
         def unravel(z, data):
             _, ts, tms, _ = clock(z)
             xs, us, ums, xms, _, _ = collocate(z, data)
-            half = interleave(ts[:, None], tms[:, None])[:, 0] if free else jnp.asarray(half_times)
-            return half, interleave(xs, xms), interleave(us, ums)
+            half = _interleave(ts[:, None], tms[:, None])[:, 0] if free else jnp.asarray(half_times)
+            return half, _interleave(xs, xms), _interleave(us, ums)
 
         def initial_guess(data):
             X = guess_states(system, data.x0, times[1:])
             U = guess_controls(system, 2 * N + 1)
             return jnp.concatenate([X.ravel(), jnp.asarray(U[: N + 1].ravel()), jnp.asarray(U[N + 1 :].ravel()),
                                     jnp.asarray(T_guess)])
-
-        n_path, T_col = system.n_path, np.arange(nX + nU + N * m, nX + nU + N * m + T_lo.size)
-        blocks = []
-        for k in range(N):
-            rows = k * n + np.arange(n)
-            cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
-            if k > 0:
-                cols.append(np.arange((k - 1) * n, k * n))  # x_k
-            cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
-            cols.append(nX + nU + np.arange(k * m, (k + 1) * m))  # u_{k+1/2}
-            blocks.append((rows, np.concatenate(cols + [T_col]), False))
-        for r, i in enumerate(fixed):
-            blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
-        for p in range(2 * N + 1):  # the half-step grid: node p / 2, or the midpoint of interval (p - 1) / 2
-            rows = N * n + fixed.size + p * n_path + np.arange(n_path)
-            k = p // 2
-            if p % 2 == 0:
-                cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [nX + np.arange(k * m, (k + 1) * m)]
-            else:
-                cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [
-                    np.arange(k * n, (k + 1) * n), nX + np.arange(k * m, (k + 2) * m),
-                    nX + nU + np.arange(k * m, (k + 1) * m)]
-            blocks.append((rows, np.concatenate(cols + [T_col]), False))
 
         x_lo, x_hi = node_state_bounds(system, N)
         p_lo, p_hi = path_bounds(system, 2 * N + 1)
@@ -192,7 +165,7 @@ class HermiteSimpson(AbstractTranscription):
             z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], 2 * N + 1), T_hi]),
             initial_guess=initial_guess,
             unravel=unravel,
-            jacobian_sparsity=sparsity(blocks),
+            jacobian_sparsity=sparsity(_blocks(N, n, m, fixed, system.n_path, T_lo.size)),
             z_scale=np.concatenate([np.tile(sx, N), np.tile(su, 2 * N + 1), T_scale]),
             name=f"{system.name}/hermite_simpson(N={N}{'' if self.grid is None else ', graded'}"
                  f"{', free T' if free else ''})",
@@ -205,3 +178,39 @@ class HermiteSimpson(AbstractTranscription):
         U = np.asarray(controls(times), dtype=np.float64)
         Um = np.asarray(controls(mids), dtype=np.float64)
         return np.concatenate([X.ravel(), U.ravel(), Um.ravel()] + ([np.array([T])] if system.free_horizon else []))
+
+
+def _interleave(nodes, mids):
+    """Nodes (N + 1, d) and midpoints (N, d) as the 2N + 1 points of the half-step grid."""
+    N = mids.shape[0]
+    both = jnp.concatenate([nodes[:-1, None], mids[:, None]], axis=1)  # (N, 2, d)
+    return jnp.concatenate([jnp.reshape(both, (2 * N, -1)), nodes[-1:]], axis=0)
+
+
+def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) -> list:
+    """The Jacobian's structurally non-zero blocks: defects, final values, path rows on the half-step grid
+    (``n_T``: 1 with a free final time, whose column every row has, else 0)."""
+    nX, nU = N * n, (N + 1) * m
+    T_col = np.arange(nX + nU + N * m, nX + nU + N * m + n_T)
+    blocks = []
+    for k in range(N):
+        rows = k * n + np.arange(n)
+        cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
+        if k > 0:
+            cols.append(np.arange((k - 1) * n, k * n))  # x_k
+        cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
+        cols.append(nX + nU + np.arange(k * m, (k + 1) * m))  # u_{k+1/2}
+        blocks.append((rows, np.concatenate(cols + [T_col]), False))
+    for r, i in enumerate(fixed):
+        blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+    for p in range(2 * N + 1):  # the half-step grid: node p / 2, or the midpoint of interval (p - 1) / 2
+        rows = N * n + fixed.size + p * n_path + np.arange(n_path)
+        k = p // 2
+        if p % 2 == 0:
+            cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [nX + np.arange(k * m, (k + 1) * m)]
+        else:
+            cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [
+                np.arange(k * n, (k + 1) * n), nX + np.arange(k * m, (k + 2) * m),
+                nX + nU + np.arange(k * m, (k + 1) * m)]
+        blocks.append((rows, np.concatenate(cols + [T_col]), False))
+    return blocks

@@ -110,22 +110,6 @@ class Trapezoidal(AbstractTranscription):
             return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
                                     jnp.asarray(T_guess)])
 
-        n_path, T_col = system.n_path, np.arange(nX + nU, nX + nU + T_lo.size)  # T_col: empty for a fixed T
-        blocks = []
-        for k in range(N):
-            rows = k * n + np.arange(n)
-            cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
-            if k > 0:
-                cols.append(np.arange((k - 1) * n, k * n))  # x_k
-            cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
-            blocks.append((rows, np.concatenate(cols + [T_col]), False))
-        for r, i in enumerate(fixed):
-            blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
-        for k in range(N + 1):
-            rows = N * n + fixed.size + k * n_path + np.arange(n_path)
-            x_k = [np.arange((k - 1) * n, k * n)] if k > 0 else []
-            blocks.append((rows, np.concatenate(x_k + [nX + np.arange(k * m, (k + 1) * m), T_col]), False))
-
         x_lo, x_hi = node_state_bounds(system, N)
         p_lo, p_hi = path_bounds(system, N + 1)
         return NLP(
@@ -137,7 +121,7 @@ class Trapezoidal(AbstractTranscription):
             z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
             initial_guess=initial_guess,
             unravel=unravel,
-            jacobian_sparsity=sparsity(blocks),
+            jacobian_sparsity=sparsity(_blocks(N, n, m, fixed, system.n_path, T_lo.size)),
             z_scale=np.concatenate([np.tile(sx, N), np.tile(su, N + 1), T_scale]),
             name=f"{system.name}/trapezoidal(N={N}{'' if self.grid is None else ', graded'}"
                  f"{', free T' if free else ''})",
@@ -149,3 +133,25 @@ class Trapezoidal(AbstractTranscription):
         X = np.asarray(states(times[1:]), dtype=np.float64)
         U = np.asarray(controls(times), dtype=np.float64)
         return np.concatenate([X.ravel(), U.ravel()] + ([np.array([T])] if system.free_horizon else []))
+
+
+def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) -> list:
+    """The Jacobian's structurally non-zero blocks: defects, final values, path rows (``n_T``: 1 with a free final
+    time, whose column every row has, else 0)."""
+    nX, nU = N * n, (N + 1) * m
+    T_col = np.arange(nX + nU, nX + nU + n_T)  # empty for a fixed T
+    blocks = []
+    for k in range(N):
+        rows = k * n + np.arange(n)
+        cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
+        if k > 0:
+            cols.append(np.arange((k - 1) * n, k * n))  # x_k
+        cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
+        blocks.append((rows, np.concatenate(cols + [T_col]), False))
+    for r, i in enumerate(fixed):
+        blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+    for k in range(N + 1):
+        rows = N * n + fixed.size + k * n_path + np.arange(n_path)
+        x_k = [np.arange((k - 1) * n, k * n)] if k > 0 else []
+        blocks.append((rows, np.concatenate(x_k + [nX + np.arange(k * m, (k + 1) * m), T_col]), False))
+    return blocks
