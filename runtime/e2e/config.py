@@ -3,14 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 from typing import Any
 
 import numpy as np
 
-from ..learn.identity import describe
+from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.models import MODELS as _REGISTRY
 from ..solvers.adjoint import Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
@@ -23,18 +21,6 @@ INITS = ("guess", "sysid")
 GRADIENTS = ("unrolled", "implicit")
 LOSSES = ("controls", "states", "both")
 ON_FAILURE = ("skip", "unrolled", "backtrack")
-
-
-def _describe(v: Any) -> Any:
-    """Like the checkpoint's ``describe``, but a solver by its fields and a step rule by its ``init``'s name: their
-    ``repr`` carries memory addresses, which would make every resume look like another configuration."""
-    if isinstance(v, Extragradient):
-        return {f.name: _describe(getattr(v, f.name)) for f in dataclasses.fields(v)}
-    if dataclasses.is_dataclass(v) and not isinstance(v, type):  # e.g. init's SysidConfig and what it holds
-        return {"type": type(v).__name__, **{f.name: _describe(getattr(v, f.name)) for f in dataclasses.fields(v)}}
-    if callable(getattr(v, "init", None)) and callable(getattr(v, "update", None)):
-        return describe(v.init)
-    return describe(v)
 
 
 def _int(v: Any, low: int) -> bool:
@@ -203,9 +189,8 @@ class E2EConfig:
     def identity(self, system: str) -> tuple[str, dict]:
         """``(sha256, description)`` of what fixes the sequence of iterates (not ``iterations``,
         ``checkpoint_every``, ``snapshot_every`` or ``reaim``, which a resumed run may change)."""
-        desc = {f.name: _describe(getattr(self, f.name)) for f in dataclasses.fields(self)
+        desc = {f.name: describe(getattr(self, f.name)) for f in dataclasses.fields(self)
                 if f.name not in ("iterations", "checkpoint_every", "snapshot_every", "reaim")}
-        opt = self.optimizer
-        desc["optimizer"] = {"adam": opt} if isinstance(opt, float) else {"custom": describe(opt.init)}
+        desc["optimizer"] = optimizer_identity(self.optimizer)
         desc["system"] = system
-        return hashlib.sha256(json.dumps(desc, sort_keys=True).encode()).hexdigest(), desc
+        return digest(desc), desc
