@@ -12,9 +12,10 @@ the repository's READMEs included in pages, and links that leave ``docs/``.
 - Docstrings are Google style with reST's ``.. math::`` blocks and ``:class:`` / ``:func:`` / ``:meth:`` / ``:mod:``
   roles. A Markdown preprocessor (added to every page and to mkdocstrings' rendering) turns the blocks into
   arithmatex's ``\\[ ... \\]`` (typeset by MathJax) and the roles into code spans.
-- Links are written for GitHub, relative to the file they are in. One into ``docs/`` is rewritten relative to the
-  page; one to a file outside ``docs/`` (a module's README, a spec) has no copy in the site, and ``--strict`` fails on
-  a link it cannot resolve, so it becomes the repository path in code. A broken link inside the site still fails.
+- Links are written for GitHub, relative to the file they are in. One into ``docs/``, or to a file that a page
+  includes whole (a folder's README), is rewritten to that page. Any other file outside ``docs/`` (a spec, a module)
+  has no copy in the site, and ``--strict`` fails on a link it cannot resolve, so such a link becomes the repository
+  path in code. A broken link inside the site still fails.
 """
 
 from __future__ import annotations
@@ -109,6 +110,19 @@ def _section(path: Path, name: str | None) -> str:
     return "\n".join(line for line in lines if "--8<-- [" not in line) + "\n"
 
 
+# A file that a page includes whole (e.g. runtime/sysid/README.md) -> that page: links to the file go there.
+_INCLUDED: dict[Path, Path] = {}
+
+
+def on_files(files, config):
+    _INCLUDED.clear()
+    for page in files.documentation_pages():
+        for match in _INCLUDE.finditer(Path(page.abs_src_path).read_text(encoding="utf-8")):
+            if not match.group(2):
+                _INCLUDED[(ROOT / match.group(1)).resolve()] = Path(page.abs_src_path).resolve()
+    return files
+
+
 def _relink(markdown: str, base: Path, page_dir: Path, docs: Path) -> str:
     """The relative links of ``markdown`` (written relative to ``base``) for a page in ``page_dir``."""
 
@@ -118,6 +132,7 @@ def _relink(markdown: str, base: Path, page_dir: Path, docs: Path) -> str:
             return match.group(0)
         file, _, anchor = target.partition("#")
         path = (base / file).resolve()
+        path = _INCLUDED.get(path, path)
         if path == docs or docs in path.parents:
             rel = os.path.relpath(path, page_dir).replace(os.sep, "/")
             return f"[{text}]({rel}{'#' + anchor if anchor else ''})"
