@@ -6,26 +6,14 @@
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
+from ..learn.progress import progress_meter
 from .backends import AbstractBackend, SerialBackend
 from .config import SweepConfig
 from .tasks import error_record
 
 __all__ = ["run_sweep"]
-
-
-class _NoBar:  # the progress bar when there is none
-    update = set_postfix_str = close = staticmethod(lambda *args: None)
-
-
-def _bar(progress: bool | None, total: int):
-    if not (sys.stderr.isatty() if progress is None else progress):
-        return _NoBar()
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="sweep", unit="task", file=sys.stderr, dynamic_ncols=True)
 
 
 def run_sweep(config: SweepConfig, backend: AbstractBackend | None = None, *,
@@ -42,15 +30,12 @@ def run_sweep(config: SweepConfig, backend: AbstractBackend | None = None, *,
     """
     backend = backend or SerialBackend()
     tasks = config.tasks()
-    bar, records, bad = _bar(progress, len(tasks)), [], 0
-    try:
+    records, bad = [], 0
+    with progress_meter(progress, len(tasks), desc="sweep", unit="task") as meter:  # the learners' meter
         for record in backend.map(tasks):
             records.append(record)
             bad += record["status"] != "ok"
-            bar.update(1)
-            bar.set_postfix_str(f"{bad} not ok" if bad else "all ok")
-    finally:
-        bar.close()
+            meter.update(f"{bad} not ok" if bad else "all ok")
     seen = {r["index"] for r in records}
     for task in tasks:  # a backend that lost a task must not make the table look complete
         if task["index"] not in seen:
