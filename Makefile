@@ -28,8 +28,9 @@ test: setup
 	$(BIN)/python -m pytest -n 2 --dist loadfile --durations=25  # two workers, a file each; the 25 slowest tests listed
 
 # What a developer runs while working: every test but those marked slow (tests/README.md), under 2 minutes on 2 cores.
+# A file per worker, as in make test: a module's fixtures and compiled programs are built once.
 test-fast: setup
-	$(BIN)/python -m pytest -n 2 -m "not slow"
+	$(BIN)/python -m pytest -n 2 --dist loadfile -m "not slow"
 
 # The main job: the reference table of all 18 systems (published setting + best over all transcriptions),
 # written to out/ as Markdown and JSON, with one plot per system.
