@@ -108,3 +108,24 @@ def test_run_identity_describes_without_memory_addresses():
     assert desc["f"] == "builtins.len" and desc["opt"] == desc["optimizer"]["custom"] and "0x" not in json.dumps(desc)
     assert desc["lr"] == {"adam": 0.01}
     assert digest(desc) == digest(json.loads(json.dumps(desc))) and len(digest(desc)) == 64
+
+
+def test_one_spelling_per_model_name_in_the_runtime():
+    """The registry's keys are the only model names: no module spells another ("neural_ode" was the Neural ODE's
+    second name), and the commands offer exactly the registry's."""
+    import ast
+    from pathlib import Path
+
+    import myriad.runtime as runtime
+    from myriad.runtime.cli import _parser
+
+    root = Path(runtime.__file__).parent
+    other = {"neural_ode", "neuralode", "neural-ode", "NODE"}
+    found = [(str(p.relative_to(root)), node.value) for p in root.rglob("*.py") if "systems" not in p.parts
+             for node in ast.walk(ast.parse(p.read_text())) if isinstance(node, ast.Constant) and node.value in other]
+    assert not found, found
+    parser = _parser()
+    commands = next(a for a in parser._actions if a.choices and "sysid" in a.choices).choices
+    for name in ("sysid", "e2e"):
+        model = next(a for a in commands[name]._actions if "--model" in a.option_strings)
+        assert list(model.choices) == list(MODELS), name
