@@ -10,7 +10,7 @@ import numpy as np
 
 from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.models import MODELS as _REGISTRY
-from ..solvers.adjoint import Implicit, Unrolled, adjoint
+from ..solvers.adjoint import ADJOINTS, Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
 
@@ -18,7 +18,7 @@ __all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
 
 MODELS = tuple(_REGISTRY)  # the learning kit's model names (one spelling each)
 INITS = ("guess", "sysid")
-GRADIENTS = ("unrolled", "implicit")
+GRADIENTS = tuple(ADJOINTS)  # the adjoints' names, which E2EConfig(adjoint=...) also reads
 LOSSES = ("controls", "states", "both")
 ON_FAILURE = ("skip", "unrolled", "backtrack")
 

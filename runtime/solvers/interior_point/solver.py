@@ -15,7 +15,7 @@ from ..base import AbstractNLPSolver, ScaledProblem, cached, constraint_violatio
 from ..pure import AbstractPureSolver, ScaledEvaluation
 from ..stepper import Stepper
 from .implicit import differentiable
-from .loop import InteriorPointSolution, WarmStart, make_solve_fn
+from .loop import InteriorPointSolution, InteriorPointStepper, WarmStart
 from .problem import Layout
 
 __all__ = ["InteriorPoint"]
@@ -245,6 +245,7 @@ class _Compiled(ScaledEvaluation):
     def __init__(self, problem: ScaledProblem, solver: InteriorPoint, method: str):
         super().__init__(problem)
         layout = Layout(problem, method)
-        loop, self.cold, self.stepper = make_solve_fn(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
-                                                      solver.second_order_correction)
-        self.raw = differentiable(loop, problem)
+        stepper = InteriorPointStepper(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
+                                       solver.second_order_correction)
+        self.cold, self.stepper = stepper.cold, stepper.stepper
+        self.raw = differentiable(stepper.stepper.solve, problem)
