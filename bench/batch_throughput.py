@@ -141,6 +141,44 @@ def _rel(a, b):
     return abs(a - b) / max(abs(b), 1e-12)
 
 
+def _rounds(measures: dict, repeat: int) -> dict:
+    """Every row once a round, side by side, so that a ratio is taken between neighbours in time (the host's speed
+    drifts); each row's figure is its median round, the spread its slowest and fastest."""
+    rows: dict = {}
+    for _ in range(repeat):
+        for label, measure in measures.items():
+            r = measure()
+            rows.setdefault(label, {**r, "round_seconds": []})["round_seconds"].append(r["seconds"])
+    return rows
+
+
+def _print_rates(rows: dict, repeat: int) -> None:
+    """Each row's median rate, its range over the rounds, compile time and convergence (the medians go into rows)."""
+    print(f"{'':36s} {'problems/s':>11s} {'(range)':>15s} {'compile s':>10s} {'converged':>12s}  (median of "
+          f"{repeat} rounds; warm, Python overhead included; compile s: the first, untimed call)")
+    for label, r in rows.items():
+        rates = [r["n"] / sec for sec in r["round_seconds"]]
+        r["seconds"] = float(np.median(r["round_seconds"]))
+        r["problems_per_second"] = r["n"] / r["seconds"]
+        spread = f"{min(rates):.1f}-{max(rates):.1f}"
+        print(f"{label:36s} {r['problems_per_second']:11.1f} {spread:>15s} {r['compile_seconds']:10.2f} "
+              f"{sum(r['converged']):5d}/{r['n']:<6d}")
+
+
+def _print_ratios(rows: dict, base: dict, batch: int, subset: int) -> None:
+    """The batched row against every other: throughput ratio per round, and how far the costs agree."""
+    for label, r in list(rows.items())[1:]:
+        pairs = [_rel(a, b) for a, b, ca, cb in zip(base["costs"], r["costs"], base["converged"], r["converged"])
+                 if ca and cb]
+        worst = f"{max(pairs):.1e}" if pairs else "-"
+        ratios = [(base["n"] / sb) / (r["n"] / so) for sb, so in zip(base["round_seconds"], r["round_seconds"])]
+        r["ratios"] = ratios
+        print(f"  batched / {label}: {float(np.median(ratios)):.1f}x throughput (rounds: "
+              + ", ".join(f"{x:.1f}x" for x in ratios) + f"); cost max relative difference {worst} over "
+              f"{len(pairs)} members converged on both sides "
+              + ("(all members)" if r["n"] == batch else f"(one at a time: first {subset} of {batch}, extrapolated)"))
+
+
 def run_system(name, args) -> dict:
     system = load(name)
     tr = (Trapezoidal(intervals=args.grid) if args.transcription == "trapezoidal"
@@ -192,34 +230,10 @@ def run_system(name, args) -> dict:
     if published:
         measures["CasADi + IPOPT, one at a time"] = lambda: {
             **casadi_one_at_a_time(system, name, params, x0, subset), "n": subset}
-    # Rounds: every row once a round, side by side, so that a ratio is taken between neighbours in time (the host's
-    # speed drifts); each row's figure is its median round, the spread its slowest and fastest.
-    rows: dict = {}
-    for _ in range(args.repeat):
-        for label, measure in measures.items():
-            r = measure()
-            rows.setdefault(label, {**r, "round_seconds": []})["round_seconds"].append(r["seconds"])
-    print(f"{'':36s} {'problems/s':>11s} {'(range)':>15s} {'compile s':>10s} {'converged':>12s}  (median of "
-          f"{args.repeat} rounds; warm, Python overhead included; compile s: the first, untimed call)")
-    for label, r in rows.items():
-        rates = [r["n"] / sec for sec in r["round_seconds"]]
-        r["seconds"] = float(np.median(r["round_seconds"]))
-        r["problems_per_second"] = r["n"] / r["seconds"]
-        spread = f"{min(rates):.1f}-{max(rates):.1f}"
-        print(f"{label:36s} {r['problems_per_second']:11.1f} {spread:>15s} {r['compile_seconds']:10.2f} "
-              f"{sum(r['converged']):5d}/{r['n']:<6d}")
+    rows = _rounds(measures, args.repeat)
+    _print_rates(rows, args.repeat)
     base = rows[main_row]
-    for label, r in list(rows.items())[1:]:
-        pairs = [_rel(a, b) for a, b, ca, cb in zip(base["costs"], r["costs"], base["converged"], r["converged"])
-                 if ca and cb]
-        worst = f"{max(pairs):.1e}" if pairs else "-"
-        ratios = [(base["n"] / sb) / (r["n"] / so) for sb, so in zip(base["round_seconds"], r["round_seconds"])]
-        r["ratios"] = ratios
-        print(f"  batched / {label}: {float(np.median(ratios)):.1f}x throughput (rounds: "
-              + ", ".join(f"{x:.1f}x" for x in ratios) + f"); cost max relative difference {worst} over "
-              f"{len(pairs)} members converged on both sides "
-              + ("(all members)" if r["n"] == args.batch else
-                 f"(one at a time: first {subset} of {args.batch}, extrapolated)"))
+    _print_ratios(rows, base, args.batch, subset)
     if not published:
         print("  (no CasADi row: it poses the published setting only, --transcription single_shooting --grid 100)")
     its = np.array(base["iterations"])

@@ -52,6 +52,103 @@ def best_rate(fn, steps: int, repeats: int) -> float:
     return steps / best
 
 
+def _envs(system, args):
+    """B differently parameterised envs: every parameter and x0 scaled by U(1 -+ spread), x0 kept in its bounds."""
+    import numpy as np
+
+    from myriad.runtime.data import batch_data
+
+    B = args.num_envs
+    rng = np.random.default_rng(0)
+    base = system.default_params()
+    params = {k: float(v) * rng.uniform(1 - args.spread, 1 + args.spread, B) for k, v in base.items()
+              if k not in system.structural_params}
+    x0 = np.asarray(system.x0) * rng.uniform(1 - args.spread, 1 + args.spread, (B, system.n_states))
+    a = system.arrays()
+    x0 = np.clip(x0, a["x_lower"], a["x_upper"])
+    return params, x0, batch_data(system, params, x0)
+
+
+def _core_rows(env, batch, actions, key, keys, repeats) -> tuple[list, int]:
+    """The functional core: one env and B envs, a jitted step per call and a whole episode in one scan; and how many
+    programs the batched step compiled to (new parameter values must reuse it)."""
+    N, B = actions.shape[:2]
+    rows = []
+    one = env.default_params()
+    step1 = jax.jit(env.step)
+    _, s1 = env.reset(key, one)
+    per_step = [actions[k, 0] for k in range(N)]  # sliced once: an eager slice per step would be timed too
+
+    def loop_one():
+        s = s1
+        for a_k in per_step:
+            _, s, r, *_ = step1(key, s, a_k, one)
+        return r
+
+    rows.append(("core, one env, jit step per call", best_rate(loop_one, N, repeats)))
+
+    def episode(state, acts, params, keys_):
+        def body(s, a):
+            _, s, r, *_ = env.step(keys_, s, a, params)
+            return s, r
+        return jax.lax.scan(body, state, acts)[1].sum(0)
+
+    scan1 = jax.jit(episode)
+    rows.append(("core, one env, episode in one scan", best_rate(lambda: scan1(s1, actions[:, 0], one, key), N,
+                                                                  repeats)))
+
+    stepB = jax.jit(jax.vmap(env.step))
+    _, sB = jax.jit(jax.vmap(env.reset))(keys, batch)
+
+    per_step_b = [actions[k] for k in range(N)]
+
+    def loop_batch():
+        s = sB
+        for a_k in per_step_b:
+            _, s, r, *_ = stepB(keys, s, a_k, batch)
+        return r
+
+    rows.append((f"core, vmap over {B} envs, jit step per call", best_rate(loop_batch, N * B, repeats)))
+    scanB = jax.jit(jax.vmap(episode, in_axes=(0, 1, 0, 0)))
+    rows.append((f"core, vmap over {B} envs, episode in one scan",
+                 best_rate(lambda: scanB(sB, actions, batch, keys), N * B, repeats)))
+    programs = stepB._cache_size()
+    stepB(keys, sB, actions[0], batch._replace(params={k: v * 1.01 for k, v in batch.params.items()}))
+    assert stepB._cache_size() == programs == 1, "new parameter values recompiled the batched step"
+    return rows, programs
+
+
+def _gym_rows(system, env, params, x0, actions, repeats) -> list:
+    """The Gymnasium adapters, NumPy in and out: one env, and the vector env of B."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from myriad.runtime.rl import MyriadEnv, MyriadVectorEnv
+
+    N, B = actions.shape[:2]
+    rows = []
+    gym_env = MyriadEnv(system, steps=N, action_bound=env.options.action_bound)
+    np_actions = np.asarray(actions, np.float32)
+
+    def loop_gym():
+        gym_env.reset(seed=0)
+        for k in range(N):
+            out = gym_env.step(np_actions[k, 0])
+        return jnp.asarray(out[1])
+
+    rows.append(("Gymnasium MyriadEnv.step (NumPy)", best_rate(loop_gym, N, repeats)))
+    vec = MyriadVectorEnv(system, B, params=params, x0=x0, steps=N, action_bound=env.options.action_bound)
+
+    def loop_vec():
+        vec.reset(seed=0)
+        for k in range(N):
+            out = vec.step(np_actions[k])
+        return jnp.asarray(out[1])
+
+    rows.append((f"Gymnasium MyriadVectorEnv.step, {B} envs", best_rate(loop_vec, N * B, repeats)))
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--system", default="van_der_pol")
@@ -65,24 +162,14 @@ def main() -> None:
     jax.config.update("jax_enable_x64", args.x64)
 
     import jax.numpy as jnp
-    import numpy as np
 
     from myriad.runtime import load
-    from myriad.runtime.data import batch_data
-    from myriad.runtime.rl import MyriadEnv, MyriadVectorEnv, make_jax
+    from myriad.runtime.rl import make_jax
 
     B, N = args.num_envs, args.steps
     system = load(args.system)
     env = make_jax(system, steps=N, action_bound=2.0 if args.system == "simple_case" else None)
-    rng = np.random.default_rng(0)
-    base = system.default_params()
-    params = {k: float(v) * rng.uniform(1 - args.spread, 1 + args.spread, B) for k, v in base.items()
-              if k not in system.structural_params}
-    x0 = np.asarray(system.x0) * rng.uniform(1 - args.spread, 1 + args.spread, (B, system.n_states))
-    a = system.arrays()
-    x0 = np.clip(x0, a["x_lower"], a["x_upper"])
-    batch = batch_data(system, params, x0)
-    one = env.default_params()
+    params, x0, batch = _envs(system, args)
     key = jax.random.PRNGKey(0)
     actions = jax.random.uniform(key, (N, B, env.action_size), minval=-1.0, maxval=1.0)
     keys = jax.random.split(key, B)
@@ -90,68 +177,8 @@ def main() -> None:
     print(f"machine: {cpu_model()}; {os.cpu_count()} cores; {platform.system()} {platform.release()}")
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; dtype {jnp.result_type(float)}; system "
           f"{system.name}; {N} steps per episode; {B} envs, parameters and x0 spread +-{args.spread:g}")
-    rows = []
-
-    step1 = jax.jit(env.step)
-    _, s1 = env.reset(key, one)
-    per_step = [actions[k, 0] for k in range(N)]  # sliced once: an eager slice per step would be timed too
-
-    def loop_one():
-        s = s1
-        for a_k in per_step:
-            _, s, r, *_ = step1(key, s, a_k, one)
-        return r
-
-    rows.append(("core, one env, jit step per call", best_rate(loop_one, N, args.repeats)))
-
-    def episode(state, acts, params, keys_):
-        def body(s, a):
-            _, s, r, *_ = env.step(keys_, s, a, params)
-            return s, r
-        return jax.lax.scan(body, state, acts)[1].sum(0)
-
-    scan1 = jax.jit(episode)
-    rows.append(("core, one env, episode in one scan", best_rate(lambda: scan1(s1, actions[:, 0], one, key), N,
-                                                                  args.repeats)))
-
-    stepB = jax.jit(jax.vmap(env.step))
-    _, sB = jax.jit(jax.vmap(env.reset))(keys, batch)
-
-    per_step_b = [actions[k] for k in range(N)]
-
-    def loop_batch():
-        s = sB
-        for a_k in per_step_b:
-            _, s, r, *_ = stepB(keys, s, a_k, batch)
-        return r
-
-    rows.append((f"core, vmap over {B} envs, jit step per call", best_rate(loop_batch, N * B, args.repeats)))
-    scanB = jax.jit(jax.vmap(episode, in_axes=(0, 1, 0, 0)))
-    rows.append((f"core, vmap over {B} envs, episode in one scan",
-                 best_rate(lambda: scanB(sB, actions, batch, keys), N * B, args.repeats)))
-    programs = stepB._cache_size()
-    stepB(keys, sB, actions[0], batch._replace(params={k: v * 1.01 for k, v in batch.params.items()}))
-    assert stepB._cache_size() == programs == 1, "new parameter values recompiled the batched step"
-
-    gym_env = MyriadEnv(system, steps=N, action_bound=env.options.action_bound)
-    np_actions = np.asarray(actions, np.float32)
-
-    def loop_gym():
-        gym_env.reset(seed=0)
-        for k in range(N):
-            out = gym_env.step(np_actions[k, 0])
-        return jnp.asarray(out[1])
-
-    rows.append(("Gymnasium MyriadEnv.step (NumPy)", best_rate(loop_gym, N, args.repeats)))
-    vec = MyriadVectorEnv(system, B, params=params, x0=x0, steps=N, action_bound=env.options.action_bound)
-
-    def loop_vec():
-        vec.reset(seed=0)
-        for k in range(N):
-            out = vec.step(np_actions[k])
-        return jnp.asarray(out[1])
-
-    rows.append((f"Gymnasium MyriadVectorEnv.step, {B} envs", best_rate(loop_vec, N * B, args.repeats)))
+    rows, programs = _core_rows(env, batch, actions, key, keys, args.repeats)
+    rows += _gym_rows(system, env, params, x0, actions, args.repeats)
 
     print(f"{'path':52s} {'env steps/s':>14s}")
     for label, rate in rows:
