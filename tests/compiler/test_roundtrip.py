@@ -72,6 +72,7 @@ def test_sense_is_minimisation_form(compiled):
                                rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_jacobians_match_autodiff(compiled):
     _, s = compiled
     xs, us, ts, lams, ps = _points(compiled[0].symbolic, 2)

@@ -79,6 +79,7 @@ FAST_SCHEMA2 = [("min_time_double_integrator", 200), ("bryson_denham", 200), ("r
                 ("free_flying_robot", 400)]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,intervals", FAST_SCHEMA2, ids=[n for n, _ in FAST_SCHEMA2])
 def test_schema2_peer_reaches_its_published_optimum_through_casadi(name, intervals):
     pytest.importorskip("casadi")

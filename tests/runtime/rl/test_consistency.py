@@ -20,6 +20,7 @@ from myriad.runtime.systems import NAMES
 N = 100
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_open_loop_return_of_the_optimisers_controls_is_minus_its_cost(name):
     system = load(name)

@@ -17,6 +17,7 @@ from ...helpers import ROOT
 OPTIONS = {"simple_case": {"action_bound": 2.0}}  # its control is unbounded
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("error")
 @pytest.mark.parametrize("name", NAMES)
 def test_every_shipped_system_passes_the_gymnasium_checker(name):

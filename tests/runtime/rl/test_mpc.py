@@ -47,6 +47,7 @@ def test_nominal_mpc_reaches_the_open_loop_optimum(nominal, name):
     np.testing.assert_allclose(np.asarray(replay.states), ep.states, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_the_plan_is_the_env_cost_and_a_replan_is_the_tail_of_the_plan(nominal):
     env, mpc, _ = nominal["van_der_pol"]
     data = env.default_params()
@@ -66,6 +67,7 @@ def test_the_plan_is_the_env_cost_and_a_replan_is_the_tail_of_the_plan(nominal):
     np.testing.assert_allclose(tail[k:], plan[k:], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_disturbed_episodes_are_seeded_and_share_the_compiled_planner(nominal):
     env, mpc, ep = nominal["simple_case"]
     data = env.default_params()
