@@ -13,6 +13,12 @@ os.environ.setdefault("MYRIAD_JAX_CACHE", "off")
 # runs each). Both compile the same HLO program; `myriad bench --compile quick` turns them off too (programs.py).
 if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+# LLVM's lowest optimisation level, for the same reason (a test's programs run a few times; compiling them is most of
+# its time): test_gradients.py and test_solvers.py 65 -> 51 s of CPU, the Riccati file 93 -> 70 s, e2e/test_gradients.py
+# and solvers/test_interior_point.py 89 -> 67 s, every test passing (2-core AMD EPYC, 2026-12-05, one process each).
+# `myriad bench --compile quick` sets it too (programs.QUICK).
+if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_backend_optimization_level=0".strip()
 
 import jax  # noqa: E402
 
