@@ -105,6 +105,7 @@ def add_arguments(parser: argparse.ArgumentParser, cls: type, *, spelled: Mappin
         kwargs = {"dest": f.name, "default": argparse.SUPPRESS, **_kind(hints[f.name])}
         if f.name in choices:
             kwargs["choices"] = list(choices[f.name])
+            kwargs.pop("metavar", None)  # the usage line shows the choices
         if f.name in metavars:
             kwargs["metavar"] = metavars[f.name]
         kwargs["help"] = _help(docs.get(f.name, ""), f)
@@ -134,7 +135,8 @@ def _kind(hint: Any) -> dict[str, Any]:
 def _help(text: str, f: dataclasses.Field) -> str:
     default = f.default if f.default is not dataclasses.MISSING else None
     text = text.rstrip(".")
-    if "default" not in text and default not in (None, (), "") and not isinstance(default, bool):
+    if "default" not in text and isinstance(default, (int, float, str)) and not isinstance(default, bool) \
+            and default != "":
         text = f"{text} (default: {default})"
     text = re.sub(r":\w+:`~?(?:[\w.]*\.)?(\w+)`", r"\1", text).replace("``", "")  # reST roles and literals
     return text.replace("%", "%%")  # argparse formats help with %

@@ -17,45 +17,40 @@ from ..learn.models import MODELS
 __all__ = ["add_parser", "run"]
 
 
+_METAVARS = {"iterations": "N", "reset_every": "R", "soft_state_bounds": "C", "learn_cost": "NAME", "hidden": "W",
+             "reaim": "K", "seed": "S", "checkpoint_every": "N", "snapshot_every": "N", "optimizer": "LR"}
+
+
 def add_parser(sub) -> None:
+    from ..configs import add_arguments
+    from ..learn.models import ACTIVATIONS
+    from ..solvers.adjoint import ADJOINTS
+    from .config import INITS, LOSSES, ON_FAILURE, E2EConfig
+
     s = sub.add_parser("e2e", help="end-to-end learning: imitate the true optimum through the planner (Algorithm 2)")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--model", choices=list(MODELS), default="parametric",
-                   help="the spec's learnable parameters, or a Neural ODE (default: parametric)")
-    s.add_argument("--gradient", choices=["unrolled", "implicit"], default="unrolled",
-                   help="reverse mode through K planner steps, or the implicit function theorem at a converged plan")
-    s.add_argument("--unroll", type=int, default=None, metavar="K", help="planner steps per iteration "
-                   "(default 10 parametric, 5 Neural ODE)")
-    s.add_argument("--iterations", type=int, default=None, metavar="N", help="outer iterations (default 600)")
+    # The flags are E2EConfig's fields (--adjoint, --planner, --cost-guess take a word or JSON; --set reaches a nested
+    # field), with --lr for the optimizer, and --gradient/--unroll and --implicit-solver as the old spellings of
+    # an adjoint and of a solver object.
+    add_arguments(s, E2EConfig, skip=("implicit_solver",), spelled={"optimizer": ("--lr",)}, metavars=_METAVARS,
+                  choices={"model": list(MODELS), "loss": list(LOSSES), "on_failure": list(ON_FAILURE),
+                           "activation": list(ACTIVATIONS), "init": list(INITS)})
+    s.add_argument("--gradient", choices=list(ADJOINTS), default=None,
+                   help="the adjoint by its name: reverse mode through K planner steps, or the implicit function "
+                        "theorem at a converged plan (default: unrolled)")
+    s.add_argument("--unroll", type=int, default=None, metavar="K", help="the adjoint's K: planner steps per "
+                   "iteration (default 10 parametric, 5 Neural ODE)")
+    s.add_argument("--implicit-solver", dest="implicit_solver_name", choices=["extragradient", "interior_point"],
+                   default=None, help="implicit mode: the solve to tolerance (interior_point: Newton steps, much "
+                   "faster where final values are required; docs/notes/e2e-node.md); --set implicit_solver=... sets "
+                   "the object")
     s.add_argument("--intervals", type=int, default=100, metavar="N",
                    help="the single-shooting control grid: N intervals (default 100, the published setting)")
-    s.add_argument("--reset-every", type=int, default=1000, metavar="R",
-                   help="restart the planner from its initial guess every R iterations (default 1000, published)")
-    s.add_argument("--lr", type=float, default=None, metavar="LR", help="Adam's learning rate (default 1e-2)")
-    s.add_argument("--on-failure", choices=["skip", "unrolled", "backtrack"], default="backtrack",
-                   help="implicit mode: when a solve does not converge, skip the step, unroll instead, or go back to "
-                        "the last parameters whose plan converged and take the step again at half the length")
-    s.add_argument("--implicit-solver", choices=["extragradient", "interior_point"], default="extragradient",
-                   help="implicit mode: the solve to tolerance (interior_point: Newton steps, much faster where final "
-                        "values are required; docs/notes/e2e-node.md)")
-    s.add_argument("--soft-state-bounds", type=float, default=None, metavar="C",
-                   help="plan the learned model with elastic final-state bounds, penalty C max(1, |J*|) per unit of "
-                        "scaled violation (J*: the expert's cost; 10 in Table D). Default: hard bounds")
-    s.add_argument("--learn-cost", nargs="+", default=(), metavar="NAME", help="also learn these cost weights")
-    s.add_argument("--init", choices=["guess", "sysid"], default="guess",
-                   help="where theta starts: the spec's guesses / random weights, or a system-identification fit "
-                        "(rounds 1; measured for Neural ODEs in docs/notes/e2e-node.md)")
-    s.add_argument("--hidden", type=int, nargs="+", default=None, metavar="W",
-                   help="node: hidden widths (default 50 50, the published Cancer Treatment network)")
     s.add_argument("--expert", metavar="FILE.npz", default=None,
                    help="imitate a recorded trajectory of a system-identification dataset (made with x0_std 0 on "
                         "the --intervals grid) instead of the true optimum")
     s.add_argument("--expert-split", choices=["train", "validation", "test"], default="train")
     s.add_argument("--expert-index", type=int, default=0, metavar="I", help="which trajectory of the split (0)")
-    s.add_argument("--reaim", type=int, default=None, metavar="K",
-                   help="re-aim the final plan at the required final values at most K times from observed true runs "
-                        "(default: 6 for a Neural ODE, 0 for a parametric model)")
-    s.add_argument("--seed", type=int, default=0, metavar="S")
     add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 
 
@@ -63,36 +58,37 @@ def _usage(message: str) -> int:
     return usage("e2e", message)
 
 
-def _implicit_solver(name: str):
-    if name == "interior_point":
-        from ..solvers.interior_point import InteriorPoint
+def read_config(args):
+    """The :class:`~myriad.runtime.e2e.config.E2EConfig` of the arguments (``ValueError``: a usage error)."""
+    from ..configs import from_args
+    from ..solvers.adjoint import adjoint
+    from ..solvers.interior_point import InteriorPoint
+    from .config import E2EConfig
 
-        return InteriorPoint()
-    return None  # the configuration's default extragradient
+    given = {}
+    if args.gradient is not None or args.unroll is not None:
+        given["adjoint"] = adjoint(args.gradient or "unrolled", args.unroll)
+    if args.implicit_solver_name is not None:  # extragradient: the configuration's default one
+        given["implicit_solver"] = InteriorPoint() if args.implicit_solver_name == "interior_point" else None
+    return from_args(E2EConfig, args, **given)
 
 
 def run(args) -> int:
-    from ..solvers.adjoint import adjoint
+    from ..configs import usage_message
     from .config import E2EConfig
 
     if error := first_error(args):
         return _usage(error)
     if args.intervals < 1:
         return _usage("--intervals must be at least 1")
-    options = {k: v for k, v in (("iterations", args.iterations),
-                                 ("optimizer", args.lr), ("hidden", args.hidden), ("reaim", args.reaim))
-               if v is not None}
     try:
-        config = E2EConfig(model=args.model, adjoint=adjoint(args.gradient, args.unroll), on_failure=args.on_failure,
-                           learn_cost=tuple(args.learn_cost), seed=args.seed, reset_every=args.reset_every,
-                           init=args.init, implicit_solver=_implicit_solver(args.implicit_solver),
-                           soft_state_bounds=args.soft_state_bounds, **options)
+        config = read_config(args)
     except ValueError as exc:
-        return _usage(str(exc))
+        return _usage(usage_message(exc, E2EConfig, {"optimizer": ("--lr",)}))
     from ..loader import load
 
     system = load(args.system)
-    if args.model == "parametric" and not system.learnable:
+    if config.model == "parametric" and not system.learnable:
         return _usage(f"{system.name} declares no learnable parameters; use --model node, or mark parameters "
                       f"`learnable: true` (with a `guess`) in its spec")
     unknown = [n for n in config.learn_cost if n not in system.param_names]

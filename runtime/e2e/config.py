@@ -123,7 +123,7 @@ class E2EConfig:
         opt = self.optimizer
         if isinstance(opt, (int, float)) and not isinstance(opt, bool):
             if not (math.isfinite(opt) and opt > 0):
-                raise ValueError(f"E2EConfig: a learning rate must be finite and > 0, got {opt!r}")
+                raise ValueError(f"E2EConfig: optimizer as a learning rate must be finite and > 0, got {opt!r}")
             object.__setattr__(self, "optimizer", float(opt))
         elif not (callable(getattr(opt, "init", None)) and callable(getattr(opt, "update", None))):
             raise ValueError(f"E2EConfig: optimizer must be a learning rate or an optax.GradientTransformation, "

@@ -17,29 +17,22 @@ from ..learn.models import MODELS
 __all__ = ["add_parser", "run"]
 
 
+_METAVARS = {"trajectories": "N", "rounds": "K", "noise": "F", "seed": "S", "epochs": "E", "hidden": "W", "reaim": "K"}
+
+
 def add_parser(sub) -> None:
+    from ..configs import add_arguments
+    from ..learn.models import ACTIVATIONS
+    from .run import SysidConfig
+
     s = sub.add_parser("sysid", help="system identification: fit a model to trajectories, plan on it")
     s.add_argument("system", metavar="NAME|PATH")
-    s.add_argument("--model", choices=list(MODELS), default="parametric",
-                   help="the spec's learnable parameters, or a Neural ODE (default: parametric)")
-    s.add_argument("--method", choices=["least_squares", "adam"], default=None,
-                   help="least_squares (parametric default) or adam on the trajectory loss (Neural ODE default)")
-    s.add_argument("--trajectories", type=int, default=10, metavar="N", help="training trajectories per dataset")
-    s.add_argument("--rounds", type=int, default=None, metavar="K",
-                   help="datasets in sequence: train, plan, sample around the plan, retrain (default: 6 for a "
-                        "Neural ODE, 1 for a parametric model)")
-    s.add_argument("--noise", type=float, default=0.0, metavar="F", help="observation noise, fraction of the range")
-    s.add_argument("--seed", type=int, default=0, metavar="S")
-    s.add_argument("--epochs", type=int, default=None, metavar="E", help="adam: the most epochs (default 1000)")
-    s.add_argument("--hidden", type=int, nargs="+", default=[100, 100], metavar="W", help="Neural ODE widths")
-    s.add_argument("--activation", choices=["tanh", "sigmoid", "softplus", "relu"], default="tanh",
-                   help="Neural ODE activation (the published one is sigmoid)")
-    s.add_argument("--polish", type=int, default=None, metavar="N",
+    # The flags are SysidConfig's fields (--fit, --refit, --sampling take JSON; --set reaches a nested field).
+    add_arguments(s, SysidConfig, skip=("polish",), metavars=_METAVARS,
+                  choices={"model": list(MODELS), "method": ["least_squares", "adam"], "activation": list(ACTIVATIONS)})
+    s.add_argument("--polish", type=int, dest="polish_iterations", default=None, metavar="N",
                    help="Neural ODE: L-BFGS iterations after each round's Adam fit, anchored on the earlier plans' "
-                        "true trajectories (default 300; 0: none)")
-    s.add_argument("--reaim", type=int, default=None, metavar="K",
-                   help="re-aim the final plan at the required final values at most K times from observed true runs "
-                        "(default: 6 for a Neural ODE, 0 for a parametric model)")
+                        "true trajectories (default 300; 0: none); --set polish=... sets the whole PolishConfig")
     add_training_outputs(s, "loss curve, learned vs true trajectories, vector field (PNG)")
 
 
@@ -47,33 +40,37 @@ def _usage(message: str) -> int:
     return usage("sysid", message)
 
 
-def run(args) -> int:
+def read_config(args):
+    """The :class:`~myriad.runtime.sysid.run.SysidConfig` of the arguments (``ValueError``: a usage error)."""
+    import dataclasses
 
-    from .fit import FitConfig
+    from ..configs import from_args
     from .polish import PolishConfig
-    from .run import SysidConfig, failed, node_fit_config, run_sysid
+    from .run import SysidConfig
+
+    config = from_args(SysidConfig, args)
+    n = args.polish_iterations
+    if n is None:
+        return config
+    if n < 0 or not MODELS[config.model].default_polish:
+        raise ValueError("--polish N (N >= 0) goes with --model node")
+    return dataclasses.replace(config, polish=PolishConfig(iterations=n) if n else None)
+
+
+def run(args) -> int:
+    from ..configs import usage_message
+    from .run import SysidConfig, failed, run_sysid
 
     if error := first_error(args):
         return _usage(error)
-    if args.epochs is not None and args.epochs < 1:
-        return _usage("--epochs must be at least 1")
-    model = MODELS[args.model]
-    if args.polish is not None and (args.polish < 0 or not model.default_polish):
-        return _usage("--polish N (N >= 0) goes with --model node")
     try:
-        fit = None
-        if args.epochs is not None:  # the model's own recipe (SysidConfig's default), for this many epochs
-            fit = node_fit_config(args.epochs) if model.default_method == "adam" else FitConfig(epochs=args.epochs)
-        polish = "default" if args.polish is None else (PolishConfig(iterations=args.polish) if args.polish else None)
-        config = SysidConfig(model=args.model, method=args.method, trajectories=args.trajectories,
-                             rounds=args.rounds, noise=args.noise, seed=args.seed, hidden=tuple(args.hidden),
-                             activation=args.activation, fit=fit, polish=polish, reaim=args.reaim)
+        config = read_config(args)
     except ValueError as exc:
-        return _usage(str(exc))
+        return _usage(usage_message(exc, SysidConfig))
     from ..loader import load
 
     system = load(args.system)
-    if args.model == "parametric" and not system.learnable:
+    if config.model == "parametric" and not system.learnable:
         return _usage(f"{system.name} declares no learnable parameters; use --model node, or mark parameters "
                       f"`learnable: true` (with a `guess`) in its spec")
     report = run_sysid(system, config, checkpoint_dir=args.checkpoint, resume=args.resume)

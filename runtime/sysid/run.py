@@ -64,6 +64,9 @@ class SysidConfig:
         reaim: after the last round, re-aim the plan at the required final values this many times from observed
             runs of the true system (:mod:`.reaim`); None: 6 for a Neural ODE, 0 for a parametric model (its plan
             is the true model's once the parameters are recovered).
+        epochs: Adam's most epochs in the model's own recipe, the default ``fit`` (:func:`node_fit_config`
+            for a Neural ODE, ``FitConfig`` otherwise); None: the recipe's (1000). With ``fit`` given, it must say
+            the same.
     """
 
     model: str = "parametric"
@@ -77,8 +80,9 @@ class SysidConfig:
     fit: FitConfig | None = None
     refit: FitConfig | None = None
     sampling: Sampling = Sampling()
-    polish: Any = "default"
+    polish: PolishConfig | str | None = "default"
     reaim: int | None = None
+    epochs: int | None = None
 
     def __post_init__(self):
         cls = model_class(self.model, "SysidConfig")
@@ -90,8 +94,20 @@ class SysidConfig:
         object.__setattr__(self, "method", method)
         if self.rounds is None:  # datasets in sequence fix a Neural ODE's plan (docs/notes/node-training.md)
             object.__setattr__(self, "rounds", cls.default_rounds)
+        epochs = self.epochs
+        if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 1):
+            raise ValueError(f"SysidConfig: epochs must be an integer >= 1, got {epochs!r}")
         if self.fit is None:  # a model that trains by Adam by default (a network) gets the recipe measured for it
-            object.__setattr__(self, "fit", node_fit_config() if cls.default_method == "adam" else FitConfig())
+            recipe = node_fit_config if cls.default_method == "adam" else FitConfig
+            object.__setattr__(self, "fit", recipe() if epochs is None else recipe(epochs=epochs))
+        elif epochs is not None and getattr(self.fit, "epochs", None) != epochs:
+            raise ValueError(f"SysidConfig: epochs ({epochs}) sets the default fit's; the fit given says "
+                             f"{getattr(self.fit, 'epochs', None)} (set fit.epochs instead)")
+        hidden = tuple(self.hidden) if isinstance(self.hidden, (list, tuple)) else self.hidden
+        if not (isinstance(hidden, tuple) and hidden
+                and all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in hidden)):
+            raise ValueError(f"SysidConfig: hidden must be a list of layer widths >= 1, got {self.hidden!r}")
+        object.__setattr__(self, "hidden", hidden)
         if self.refit is not None and not isinstance(self.refit, FitConfig):
             raise ValueError(f"SysidConfig: refit must be a FitConfig or None, got {self.refit!r}")
         if isinstance(self.polish, str) and self.polish == "default":

@@ -12,8 +12,10 @@ import pytest
 import myriad.runtime
 from myriad.runtime.cli import _parser, main
 from myriad.runtime.configs import FieldError, build, field_docs, from_args, to_json, usage_message
+from myriad.runtime.e2e.config import E2EConfig
 from myriad.runtime.solve_config import METHODS, SolveConfig
 from myriad.runtime.sweep import parse_method
+from myriad.runtime.sysid.run import SysidConfig
 
 
 class _Reached(BaseException):
@@ -37,11 +39,38 @@ def _solve_config(args):
     return _solve_config(args)
 
 
+def _sysid_config(args):
+    from myriad.runtime.sysid.cli import read_config
+
+    return read_config(args)
+
+
+def _e2e_config(args):
+    from myriad.runtime.e2e.cli import read_config
+
+    return read_config(args)
+
+
 COMMANDS = {
     "solve": (SolveConfig, ["solve", "van_der_pol"], _solve_config, {
         "transcription": "multiple_shooting", "solver": "ipopt", "integrator": "rk4", "intervals": "20",
         "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": ("3", None, ["--tolerance", "1"]),
         "max_intervals": ("500", None, ["--tolerance", "1"]), "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
+    "sysid": (SysidConfig, ["sysid", "van_der_pol"], _sysid_config, {
+        "model": "node", "method": "adam", "trajectories": "5", "rounds": "2", "noise": "0.01", "seed": "3",
+        "hidden": ("[8, 8]", ["--hidden", "8", "8"], []), "activation": "relu", "fit": '{"epochs": 5}',
+        "refit": '{"epochs": 7}', "sampling": '{"intervals": 50}', "reaim": "2", "epochs": "50",
+        "polish": ("null", ["--polish", "0"], ["--model", "node"])}),
+    "e2e": (E2EConfig, ["e2e", "cancer_treatment"], _e2e_config, {
+        "model": "node", "adjoint": ("implicit", ["--gradient", "implicit"], []), "iterations": "5",
+        "optimizer": "0.05", "reset_every": "3", "loss": "states", "on_failure": "skip",
+        "learn_dynamics": ("false", None, ["--learn-cost", "zeta"]),
+        "learn_cost": ('["zeta"]', ["--learn-cost", "zeta"], []),
+        "cost_guess": ('[["zeta", 2.0]]', None, ["--learn-cost", "zeta"]),
+        "hidden": ("[8, 8]", ["--hidden", "8", "8"], []), "activation": "relu", "planner": "extragradient",
+        "implicit_solver": ("interior_point", ["--implicit-solver", "interior_point"], []),
+        "checkpoint_every": "2", "snapshot_every": "2", "seed": "3", "init": "sysid", "reaim": "2",
+        "soft_state_bounds": "10"}),
 }
 
 
@@ -109,6 +138,22 @@ def test_every_field_of_the_sweep_config_has_its_argument():
 
     dests = {a.dest for a in _parser()._subparsers._group_actions[0].choices["sweep"]._actions}
     assert {f.name for f in dataclasses.fields(SweepConfig)} <= dests
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["sysid", "van_der_pol", "--set", "hidden=[0]"], "--hidden"),
+    (["sysid", "van_der_pol", "--set", "trajectories=0"], "trajectories"),
+    (["sysid", "van_der_pol", "--set", "epochs=0"], "--epochs"),
+    (["sysid", "van_der_pol", "--set", "fit.epochs=x"], "epochs"),
+    (["e2e", "cancer_treatment", "--set", "iterations=0"], "--iterations"),
+    (["e2e", "cancer_treatment", "--set", "optimizer=-1"], "--lr"),
+    (["e2e", "cancer_treatment", "--set", "loss=everything"], "--loss"),
+    (["e2e", "cancer_treatment", "--set", "adjoint=sideways"], "adjoint"),
+])
+def test_a_bad_set_value_of_a_learner_is_a_usage_error_naming_the_field(capsys, argv, flag):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"myriad {argv[0]}: error: ") and flag in err, err
 
 
 @pytest.mark.parametrize("item, flag", [
