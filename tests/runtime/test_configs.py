@@ -10,11 +10,13 @@ from typing import ClassVar, Literal
 import pytest
 
 import myriad.runtime
-from myriad.runtime.cli import _parser, main
+from myriad.runtime.cli import _parser, _solve_config, main
 from myriad.runtime.configs import FieldError, build, field_docs, from_args, to_json, usage_message
+from myriad.runtime.e2e.cli import read_config as e2e_config
 from myriad.runtime.e2e.config import E2EConfig
 from myriad.runtime.solve_config import METHODS, SolveConfig
 from myriad.runtime.sweep import parse_method
+from myriad.runtime.sysid.cli import read_config as sysid_config
 from myriad.runtime.sysid.run import SysidConfig
 
 
@@ -32,36 +34,19 @@ def no_work(monkeypatch):
 
 # Per command: its config, the words before the options, the command's own reading of its arguments, and for EVERY
 # field a non-default VALUE for `--set FIELD=VALUE`, or (VALUE, words its flag takes, words the field needs beside
-# it). A field added without a sample fails test_every_field_has_a_sample, so none can be left out of the shell.
-def _solve_config(args):
-    from myriad.runtime.cli import _solve_config
-
-    return _solve_config(args)
-
-
-def _sysid_config(args):
-    from myriad.runtime.sysid.cli import read_config
-
-    return read_config(args)
-
-
-def _e2e_config(args):
-    from myriad.runtime.e2e.cli import read_config
-
-    return read_config(args)
-
-
+# it). A field added without a sample fails test_every_field_has_a_sample_and_a_help_text, so none can be left out
+# of the shell.
 COMMANDS = {
     "solve": (SolveConfig, ["solve", "van_der_pol"], _solve_config, {
         "transcription": "multiple_shooting", "solver": "ipopt", "integrator": "rk4", "intervals": "20",
         "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": ("3", None, ["--tolerance", "1"]),
         "max_intervals": ("500", None, ["--tolerance", "1"]), "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
-    "sysid": (SysidConfig, ["sysid", "van_der_pol"], _sysid_config, {
+    "sysid": (SysidConfig, ["sysid", "van_der_pol"], sysid_config, {
         "model": "node", "method": "adam", "trajectories": "5", "rounds": "2", "noise": "0.01", "seed": "3",
         "hidden": ("[8, 8]", ["--hidden", "8", "8"], []), "activation": "relu", "fit": '{"epochs": 5}',
         "refit": '{"epochs": 7}', "sampling": '{"intervals": 50}', "reaim": "2", "epochs": "50",
         "polish": ("null", ["--polish", "0"], ["--model", "node"])}),
-    "e2e": (E2EConfig, ["e2e", "cancer_treatment"], _e2e_config, {
+    "e2e": (E2EConfig, ["e2e", "cancer_treatment"], e2e_config, {
         "model": "node", "adjoint": ("implicit", ["--gradient", "implicit"], []), "iterations": "5",
         "optimizer": "0.05", "reset_every": "3", "loss": "states", "on_failure": "skip",
         "learn_dynamics": ("false", None, ["--learn-cost", "zeta"]),
