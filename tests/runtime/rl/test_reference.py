@@ -9,8 +9,8 @@ import pytest
 from myriad.runtime import load
 from myriad.runtime.rl import normalized_score, reference_scores
 from myriad.runtime.rl.reference import stale
+from myriad.runtime.solve_config import METHODS
 from myriad.runtime.systems import NAMES
-from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS
 
 
 @pytest.mark.slow
@@ -37,7 +37,7 @@ def test_each_record_is_complete_and_the_optimum_beats_the_random_policy(name):
     system = load(name)
     assert r["spec_sha256"] == system.spec_sha256 and r["sense"] == system.sense
     opt, zero, rand = r["optimal"], r["zero_control"]["cost"], r["random"]["cost"]
-    method = {**TRANSCRIPTIONS, **INDIRECT}[opt["transcription"]]
+    method = METHODS[opt["transcription"]]
     assert opt["setting"].startswith(method.__name__ + "(") and opt["solver"]
     assert all(math.isfinite(v) for v in (opt["cost"], opt["solver_cost"], opt["simulated_cost"], zero, rand))
     assert len(opt["controls"]) == 100 and len(opt["controls"][0]) == system.n_controls

@@ -10,6 +10,7 @@ import pytest
 from myriad.runtime import load, solve
 from myriad.runtime.cli import _parser, _transcription, main
 from myriad.runtime.integrators import INTEGRATORS
+from myriad.runtime.solve_config import METHODS
 from myriad.runtime.solvers import SOLVERS, Ipopt
 from myriad.runtime.status import Status
 from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS, ForwardBackwardSweep, MultipleShooting
@@ -17,7 +18,6 @@ from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS, ForwardBackw
 jax.config.update("jax_enable_x64", True)
 
 SPECS = Path(__file__).parent.parent / "specs"
-METHODS = {**TRANSCRIPTIONS, **INDIRECT}
 
 
 @pytest.fixture(scope="module")
