@@ -21,10 +21,21 @@ from myriad.runtime.method import AbstractMethod
 from myriad.runtime.solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver
 from myriad.runtime.transcriptions import INDIRECT, TRANSCRIPTIONS, AbstractTranscription
 
+# Third-party packages of the optional extras (`rl`: rejax, gymnax, flax): a module built on one of them is skipped
+# where the extra is not installed, and only for that reason.
+OPTIONAL = {"flax", "gymnax", "rejax"}
+
 
 def _runtime_modules():
     names = sorted(m.name for m in pkgutil.walk_packages(runtime.__path__, prefix=runtime.__name__ + "."))
-    return [importlib.import_module(name) for name in names]
+    modules = []
+    for name in names:
+        try:
+            modules.append(importlib.import_module(name))
+        except ModuleNotFoundError as exc:
+            if (exc.name or "").split(".")[0] not in OPTIONAL:
+                raise
+    return modules
 
 
 def _concrete_subclasses(base, exclude=None) -> set[type]:
