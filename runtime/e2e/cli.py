@@ -118,7 +118,7 @@ def run(args) -> int:
     aimed = report.evaluation.reaim
     if aimed is not None and aimed.misses:
         print(f"  re-aimed at the final values: {aimed.message}")
-    print(f"  imitation loss {rec['imitation_loss']:.3e} (converged plan: {rec['plan_imitation_loss']:.3e}); "
+    print(f"  imitation loss {_loss(rec['imitation_loss'])} (converged plan: {_loss(rec['plan_imitation_loss'])}); "
           f"planned on the model, applied to the true system: cost {rec['achieved_cost']} (true optimum "
           f"{rec['optimal_cost']}), defect {rec['achieved_defect'] or 'none required'}")
     if args.json:
@@ -133,6 +133,11 @@ def run(args) -> int:
         print(f"myriad e2e: {report.system}: {report.message}", file=sys.stderr)
         return 1
     return 0
+
+
+def _loss(value) -> str:
+    # A run stopped before its first loss (non-finite at iteration 0) records none: say so rather than crash.
+    return "none" if value is None else f"{value:.3e}"
 
 
 def _plots(report, folder: Path) -> None:

@@ -122,3 +122,12 @@ def test_cli_e2e_writes_its_record_and_plots(tmp_path, capsys):
     assert "--resume needs --checkpoint" in capsys.readouterr().err
 
 
+
+
+def test_cli_e2e_that_stops_before_its_first_loss_says_why_and_exits_1(capsys):
+    # With 20 intervals the first imitation loss is not finite: the run keeps its starting parameters, records no
+    # loss, and the command says so (it printed the missing loss with a number format and crashed before).
+    assert main(["e2e", "cancer_treatment", "--intervals", "20"]) == 1
+    out, err = capsys.readouterr()
+    assert "imitation loss none" in out
+    assert "not finite" in err and "internal error" not in err
