@@ -55,8 +55,8 @@ def simulate(
 
     The control is linearly interpolated between nodes and the running cost is integrated as an extra state by
     the same ``integrator``. With the default Heun on the 100-step grid this reproduces the discretised cost and
-    defect of the published setting; with :class:`~myriad.runtime.integrators.Adaptive` it is the "re-simulated"
-    evaluation that the bench reports separately. The two must never be mixed.
+    defect of the published setting; with :class:`~myriad.runtime.integrators.DormandPrince` it is the
+    "re-simulated" evaluation that ``solve()`` and the bench report separately. The two must never be mixed.
 
     Args:
         system: the system.

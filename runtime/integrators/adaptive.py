@@ -26,8 +26,9 @@ class Adaptive(AbstractIntegrator):
 
     with the control u(s) = u0 + (s - t)/h (u1 - u0), the same linear interpolation as the fixed-step integrators.
     Restarting the solver at every node is deliberate: a piecewise-linear control has a kink at each node, and a
-    step that straddles a kink would degrade the embedded error estimate. On a grid of N intervals this is what the
-    bench calls the "re-simulated" evaluation of a discrete solution.
+    step that straddles a kink would degrade the embedded error estimate. The "re-simulated" evaluation that
+    ``solve()`` and the benches report is not this class but :class:`~myriad.runtime.integrators.DormandPrince`
+    (:func:`myriad.runtime.solution.resimulate`); this one is diffrax's, differentiable in reverse mode.
 
     A step whose solve fails (``max_steps`` exhausted, non-finite values) returns NaN rather than raising, so failures
     survive ``jax.vmap`` and show up in the result instead of aborting a batch.

@@ -202,7 +202,8 @@ class AbstractPureSolver(abc.ABC):
         """The jit-compiled pure solve ``(data, z0) -> output`` (cached per problem and solver).
 
         It can be ``vmap``-ed over ``data`` and ``z0``, called inside other jitted code, and differentiated in forward
-        mode; reverse mode raises (see the module docstring). It is a plain ``jax.jit``: pass data whose leaves are
+        mode; reverse mode works where the pure solve carries the implicit rule (the interior point's) and raises
+        otherwise (see the module docstring). It is a plain ``jax.jit``: pass data whose leaves are
         arrays of fixed dtype (``default_data`` / ``batch_data`` build such data), or a Python float in place of an
         array traces a second program."""
         return self._programs(problem).jitted
