@@ -14,6 +14,7 @@ from ..system import System
 from .base import AbstractTranscription, sample_final_time
 from .grid import Grid, column, free_node_times, node_times, weighted_sum
 from .nlp_parts import (
+    collocation_blocks,
     final_time_variable,
     final_value_rows,
     guess_controls,
@@ -192,17 +193,7 @@ def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) ->
     (``n_T``: 1 with a free final time, whose column every row has, else 0)."""
     nX, nU = N * n, (N + 1) * m
     T_col = np.arange(nX + nU + N * m, nX + nU + N * m + n_T)
-    blocks = []
-    for k in range(N):
-        rows = k * n + np.arange(n)
-        cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
-        if k > 0:
-            cols.append(np.arange((k - 1) * n, k * n))  # x_k
-        cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
-        cols.append(nX + nU + np.arange(k * m, (k + 1) * m))  # u_{k+1/2}
-        blocks.append((rows, np.concatenate(cols + [T_col]), False))
-    for r, i in enumerate(fixed):
-        blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+    blocks = collocation_blocks(N, n, m, fixed, T_col, midpoints=True)
     for p in range(2 * N + 1):  # the half-step grid: node p / 2, or the midpoint of interval (p - 1) / 2
         rows = N * n + fixed.size + p * n_path + np.arange(n_path)
         k = p // 2

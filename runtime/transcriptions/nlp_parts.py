@@ -83,6 +83,26 @@ def sparsity(blocks: Iterable[tuple[np.ndarray, np.ndarray, bool]]) -> tuple[np.
     return pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
+def collocation_blocks(N: int, n: int, m: int, fixed: np.ndarray, T_col: np.ndarray, midpoints: bool = False) -> list:
+    """A collocation Jacobian's structurally non-zero blocks for ``sparsity``: the defect of interval ``k`` couples
+    ``x_k`` (a variable from ``k = 1``: ``x_0`` is given), ``x_{k+1}``, ``u_k``, ``u_{k+1}`` and, with ``midpoints``,
+    ``u_{k+1/2}`` (stored after the node controls); then one row per required final value. Variables: the states
+    ``x_1 .. x_N``, the node controls, the midpoint controls; every row also has ``T_col`` (a free final time's)."""
+    nX, nU = N * n, (N + 1) * m
+    blocks = []
+    for k in range(N):
+        cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
+        if k > 0:
+            cols.append(np.arange((k - 1) * n, k * n))  # x_k
+        cols.append(nX + np.arange(k * m, (k + 2) * m))  # u_k, u_{k+1}
+        if midpoints:
+            cols.append(nX + nU + np.arange(k * m, (k + 1) * m))  # u_{k+1/2}
+        blocks.append((k * n + np.arange(n), np.concatenate(cols + [T_col]), False))
+    for r, i in enumerate(fixed):
+        blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+    return blocks
+
+
 def final_value_rows(system: System) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the states with a required final value, and those values."""
     fixed = np.flatnonzero(system.final_mask)
