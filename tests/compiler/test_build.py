@@ -115,6 +115,20 @@ def test_new_spec_builds_with_cli_and_imports(tmp_path, capsys):
     assert module.SPEC_SHA256 == hashlib.sha256(NEW_SPEC.encode()).hexdigest()
 
 
+@pytest.mark.skipif(os.name != "posix", reason="file modes are POSIX")
+def test_built_files_follow_the_umask(tmp_path):
+    spec = tmp_path / "damped_spring.yaml"
+    spec.write_text(NEW_SPEC)
+    out = tmp_path / "generated"
+    old = os.umask(0o022)
+    try:
+        assert main(["build", str(spec), "-o", str(out)]) == 0
+    finally:
+        os.umask(old)
+    for name in ("__init__.py", "damped_spring.py"):
+        assert (out / name).stat().st_mode & 0o777 == 0o644, name  # not mkstemp's 0600
+
+
 def test_loader_compiles_paths_into_cache(tmp_path, monkeypatch):
     from myriad.runtime import load
 
