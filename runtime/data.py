@@ -3,10 +3,15 @@
 Every NLP function, rollout and pure solve takes a :class:`ProblemData`. Its ``params`` may be any pytree: the
 spec's ``dict[str, Array]`` by default, or a learned model's nested parameters (a network inside); only the
 leaves' shapes are static, so new values reuse compiled code and a batch of problems is one ``jax.vmap``.
+
+User input is checked here, before anything compiles: an ``x0`` or parameter of the wrong shape, or a parameter
+name the system does not have, is a ``ValueError`` (``KeyError`` for a name) naming the argument, the expected
+shape and the state or parameter names, not a broadcasting error from deep inside a traced program.
 """
 
 from __future__ import annotations
 
+import difflib
 from typing import Any, NamedTuple
 
 import jax
@@ -16,7 +21,7 @@ import numpy as np
 from .compilation.programs import register_namedtuple
 from .system import System
 
-__all__ = ["ProblemData", "default_data", "batch_data", "check_structural_params"]
+__all__ = ["ProblemData", "default_data", "batch_data", "check_structural_params", "require_float64"]
 
 
 @register_namedtuple  # the argument of every stored program
@@ -38,6 +43,20 @@ def _dtype():
     return jax.dtypes.canonicalize_dtype(np.float64)
 
 
+def require_float64(entry: str) -> None:
+    """Refuse to optimise in float32 (JAX's default) with the one-line fix, before any work.
+
+    A trajectory optimisation in float32 does not fail loudly: its KKT residuals stall near 1e-4, so the solver
+    stops at its iteration limit or calls a feasible problem infeasible. The library does not flip the global
+    ``jax_enable_x64`` flag itself: that would change the precision of the user's other JAX code behind their back
+    (diffrax and optimistix likewise compute in the dtype they are given)."""
+    if jax.dtypes.canonicalize_dtype(np.float64) != np.float64:
+        raise RuntimeError(
+            f"{entry} needs float64, but JAX is in float32 (its default), where trajectory optimisation stops at "
+            f"the iteration limit or reports feasible problems infeasible; enable float64 once, right after "
+            f"`import jax`: jax.config.update(\"jax_enable_x64\", True) (or set JAX_ENABLE_X64=1)")
+
+
 def default_data(system: System, params: dict | None = None, x0: Any = None) -> ProblemData:
     """The system's problem data, with some parameters and/or the initial state replaced.
 
@@ -47,8 +66,9 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
         x0: the initial state; defaults to ``system.x0``.
 
     Raises:
-        KeyError: a parameter the system does not have.
-        ValueError: a new value for a structural parameter (see :func:`check_structural_params`).
+        KeyError: a parameter the system does not have (with the closest names).
+        ValueError: an ``x0`` or parameter value of the wrong shape, or a new value for a structural parameter (see
+            :func:`check_structural_params`).
     """
     dtype = _dtype()
     # Host (NumPy) leaves where nothing is traced: a compiled program takes them as they are, while making device
@@ -56,9 +76,13 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
     p = _default_params(system, dtype)
     if params is not None:
         _check_names(system, params, p)
+        new = {k: _leaves(v, dtype) for k, v in params.items()}
+        _check_shapes(system, new, p, batch=())
         check_structural_params(system, params)
-        p.update({k: _leaves(v, dtype) for k, v in params.items()})
-    return ProblemData(params=p, x0=_leaf(system.x0 if x0 is None else x0, dtype))
+        p.update(new)
+    x0 = _leaf(system.x0 if x0 is None else x0, dtype)
+    _check_x0(system, x0, batch=())
+    return ProblemData(params=p, x0=x0)
 
 
 def batch_data(system: System, params: dict | None = None, x0: Any = None) -> ProblemData:
@@ -84,6 +108,9 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     dtype = _dtype()
     base = default_data(system)
     _check_names(system, params, base.params)
+    _check_shapes(system, params, base.params, batch=(batch,))
+    if x0 is not None:
+        _check_x0(system, x0, batch=(batch,))
     check_structural_params(system, params)
     p = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), base.params)
     p.update({k: _leaves(v, dtype) for k, v in params.items()})
@@ -115,9 +142,33 @@ def _leaf(value: Any, dtype) -> Any:
 
 
 def _check_names(system: System, given: dict, known: dict) -> None:
-    unknown = set(given) - set(known)
+    unknown = sorted(set(given) - set(known))
     if unknown:
-        raise KeyError(f"{system.name}: unknown parameters {sorted(unknown)}; expected some of {list(known)}")
+        # cutoff 0.5: parameter names are short (m1, m2), where one wrong character is already half the name
+        close = {k: difflib.get_close_matches(k, list(known), 1, 0.5) for k in unknown}
+        hints = [f"{k!r} (did you mean {close[k][0]!r}?)" if close[k] else repr(k) for k in unknown]
+        raise KeyError(f"{system.name}: unknown parameter{'s' if len(unknown) > 1 else ''} {', '.join(hints)}; "
+                       f"its parameters are {', '.join(known) or 'none'}")
+
+
+def _check_x0(system: System, x0: Any, batch: tuple) -> None:
+    expected = (*batch, system.n_states)
+    if tuple(np.shape(x0)) != expected:
+        names = ", ".join(system.state_names)
+        got = f"{np.size(x0)} value{'s' if np.size(x0) != 1 else ''}" if np.ndim(x0) <= 1 else f"shape {np.shape(x0)}"
+        raise ValueError(f"x0 has {got}, expected shape {expected}: {system.name} has {system.n_states} "
+                         f"state{'s' if system.n_states != 1 else ''} ({names})")
+
+
+def _check_shapes(system: System, given: dict, known: dict, batch: tuple) -> None:
+    """Each given parameter has its default's shape (after a leading batch axis in a batch)."""
+    for name, value in given.items():
+        want = jax.tree.map(lambda a: (*batch, *np.shape(a)), known[name])
+        got = jax.tree.map(np.shape, value)
+        if want != got:
+            raise ValueError(f"params[{name!r}] has shape {got}, expected {want}"
+                             f"{' (a leading batch axis, then the value)' if batch else ''} for {system.name}'s "
+                             f"parameter `{name}`")
 
 
 def check_structural_params(system: System, params: dict) -> None:

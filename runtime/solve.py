@@ -5,6 +5,14 @@
 
 Both only call the method interface (:class:`~myriad.runtime.method.AbstractMethod`): a direct transcription hands
 its NLP to the solver, an indirect method (the sweep) solves on its own and refuses a solver.
+
+Precision: both need float64 and refuse JAX's default float32 before any work, with the one-line fix
+(``jax.config.update("jax_enable_x64", True)``; :func:`~myriad.runtime.data.require_float64`). In float32 a
+solve does not fail loudly: it stops at the iteration limit or calls a feasible problem infeasible. Enabling x64 on
+``import myriad.runtime`` instead was rejected: a library that flips a global JAX flag changes the precision (and
+memory, and speed) of all the user's other JAX code, which diffrax and optimistix users do not expect; an explicit
+line with a clear refusal is the JAX way. Bad ``x0`` and ``params`` are refused as early, naming the states or
+parameters (:func:`~myriad.runtime.data.default_data`).
 """
 
 from __future__ import annotations
@@ -12,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from .data import batch_data, default_data
+from .data import batch_data, default_data, require_float64
 from .loader import load
 from .method import AbstractMethod
 from .solution import Solution
@@ -75,12 +83,15 @@ def solve(
         solved T of a free final time, ``path_violation`` the largest path-constraint violation over the points.
 
     Raises:
-        ValueError: refinement options without ``tolerance``, invalid ones, or ``tolerance`` for an indirect
-            method; raised before any work.
+        RuntimeError: JAX is in float32 (its default): the message gives the one-line fix.
+        KeyError: a parameter name the system does not have (with the closest names).
+        ValueError: ``x0`` or a parameter of the wrong shape (naming the states); refinement options without
+            ``tolerance``, invalid ones, or ``tolerance`` for an indirect method; all raised before any work.
         UnsupportedFeature: an indirect method on a system with path constraints or a free final time
             (:meth:`~myriad.runtime.system.System.require_schema1_features`); every direct transcription enforces
             both.
     """
+    require_float64("solve")
     refine = _refinement(tolerance, max_refinements, max_intervals)
     system = load(system) if isinstance(system, str) else system
     method = _method(transcription)
@@ -133,6 +144,7 @@ def solve_batch(
     Returns:
         One :class:`Solution` per problem (not re-simulated: call :func:`solve` for a single one to get that).
     """
+    require_float64("solve_batch")
     system = load(system) if isinstance(system, str) else system
     method = _method(transcription)
     return method.solve_problems(system, solver, batch_data(system, params, x0))
