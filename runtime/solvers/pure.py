@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..compilation import programs
+from ..data import require_float64
 from .base import CompiledFunction, cached, canonical_data, constraint_violations, program_key, unstack
 from .stepper import Stepper, queued
 
@@ -262,6 +263,7 @@ class AbstractPureSolver(abc.ABC):
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
+        require_float64(f"the pure solver {self.label}")  # every pure solve passes here, also one called directly
         strategy, chunk = self.batch_strategy(problem), self.batch_chunk(problem)
         return cached(problem, ("pure", self, strategy, chunk), lambda: _Programs(
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
