@@ -47,6 +47,7 @@ def _usage(message: str) -> int:
 def run(args) -> int:
     from ..compilation.jax_cache import compilation_cache_dir as resolve_cache_dir
     from .backends import BACKENDS
+    from .backends.base import BackendUnavailable
     from .config import SweepConfig
     from .run import run_sweep
     from .table import markdown, write_tables
@@ -77,7 +78,10 @@ def run(args) -> int:
     grid = " x ".join(f"{k} {w}{'s' * (k != 1)}" for w, k in sizes.items())
     print(f"sweep: {n} tasks ({grid}) on the {backend.name} backend", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    records = run_sweep(config, backend)
+    try:
+        records = run_sweep(config, backend)
+    except BackendUnavailable as exc:
+        return _usage(str(exc))
     wall = time.perf_counter() - t0
     print(markdown(records), end="")
     counts = {s: sum(r["status"] == s for r in records) for s in ("ok", "failed", "error")}

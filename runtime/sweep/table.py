@@ -47,18 +47,25 @@ def _cell(value: Any, column: str = "") -> str:
     return str(value)
 
 
+def _system(record: dict[str, Any]) -> str:
+    """The system's own name (a spec loaded by path is named as in its file, not by the path); the name or path as
+    given where the task failed before loading it."""
+    return record.get("system_name") or record["system"]
+
+
 def markdown(records: Sequence[dict[str, Any]]) -> str:
     """The Markdown table, then one line per task that is not ``ok`` with its message."""
     cols = columns(records)
     head = [c[:-len("_seconds")] + " s" if c.endswith("_seconds") else c for c in cols]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(cols)]
     for r in records:
-        cells = [_cell(r.get(c), c).replace("|", "\\|").replace("\n", " ") for c in cols]
+        named = {**r, "system": _system(r)}
+        cells = [_cell(named.get(c), c).replace("|", "\\|").replace("\n", " ") for c in cols]
         lines.append("| " + " | ".join(cells) + " |")
     bad = [r for r in records if r.get("status") != "ok"]
     if bad:
         lines.append("")
-        lines += [f"- {r['system']} / {r['method']} / seed {r['seed']}: {r['status']}: {r.get('message', '')}"
+        lines += [f"- {_system(r)} / {r['method']} / seed {r['seed']}: {r['status']}: {r.get('message', '')}"
                   for r in bad]
     return "\n".join(lines) + "\n"
 

@@ -1,7 +1,8 @@
 """One task of a sweep as a pure function, ``run(config) -> record``: JSON in, JSON out, the same on every backend.
 
-A record holds the task (``index``, ``system``, ``method``, ``kind``, ``seed``, ``settings``), its ``status``
-(``ok``; ``failed``: ran but did not converge or missed its goal; ``error``: raised, with ``error_type`` and
+A record holds the task (``index``, ``system``: as given, a name or a spec path; ``method``, ``kind``, ``seed``,
+``settings``), the loaded system's own ``system_name`` (what the table shows: ``pk_dosing``, not the path), its
+``status`` (``ok``; ``failed``: ran but did not converge or missed its goal; ``error``: raised, with ``error_type`` and
 ``traceback``), a ``message``, the kind's own fields, and where and how long it ran (``host``, ``pid``,
 ``wall_seconds``). Every field but those and the others ending in ``_seconds`` (compile, solve and training times)
 depends only on the config: :func:`comparable` drops them.
@@ -88,7 +89,8 @@ def run(config: dict[str, Any]) -> dict[str, Any]:
         clash = sorted(RESERVED & set(outcome.fields))
         if clash:
             raise RuntimeError(f"the {method['kind']} kind returned the task's own fields {clash}")
-        record = {**_head(config), "settings": settings, "status": "ok" if outcome.success else "failed",
+        record = {**_head(config), "system_name": system.name, "settings": settings,
+                  "status": "ok" if outcome.success else "failed",
                   "message": str(outcome.message), **outcome.fields}
     except Exception as exc:  # a failing task is a record, never a crash of the sweep
         return error_record(config, exc, time.perf_counter() - t0)

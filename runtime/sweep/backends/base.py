@@ -5,7 +5,12 @@ from __future__ import annotations
 import abc
 from typing import Any, ClassVar, Iterator, Sequence
 
-__all__ = ["AbstractBackend"]
+__all__ = ["AbstractBackend", "BackendUnavailable"]
+
+
+class BackendUnavailable(RuntimeError):
+    """The backend could not start where it was told to (no cluster at the address): the user's setting to fix, so
+    the CLI reports it as a usage error, not as a failed task or an internal error."""
 
 
 class AbstractBackend(abc.ABC):

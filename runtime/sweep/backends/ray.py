@@ -12,7 +12,7 @@ import logging
 from typing import Any, ClassVar, Iterator, Sequence
 
 from ..tasks import error_record, run
-from .base import AbstractBackend
+from .base import AbstractBackend, BackendUnavailable
 
 __all__ = ["RayBackend"]
 
@@ -48,7 +48,13 @@ class RayBackend(AbstractBackend):
             options = {"logging_level": logging.WARNING, "log_to_driver": False}
             if self.address is None:
                 options.update(include_dashboard=False, num_cpus=self.workers)
-            ray.init(address=self.address, **options)
+            try:
+                ray.init(address=self.address, **options)
+            except ConnectionError as exc:  # nobody listens at the address: the user's setting, not a bug
+                where = "a local Ray cluster did not start" if self.address is None else (
+                    f"--address {self.address}: no Ray cluster to connect to")
+                raise BackendUnavailable(f"{where} ({exc}); start one with `ray start --head` (then --address "
+                                         f"auto), or leave --address out for a local one") from exc
         try:
             remote = ray.remote(num_cpus=1)(run)
             queue, pending = list(tasks), {}

@@ -17,8 +17,8 @@ from ...system import System, UnsupportedFeature
 __all__ = ["AbstractKind", "Outcome", "RESERVED", "refuse_unsupported"]
 
 # The task's own fields: a kind's ``Outcome.fields`` may not use these names (the run fails loudly if it does).
-RESERVED = frozenset({"index", "system", "method", "kind", "seed", "settings", "status", "message", "error_type",
-                      "traceback", "wall_seconds", "host", "pid"})
+RESERVED = frozenset({"index", "system", "system_name", "method", "kind", "seed", "settings", "status", "message",
+                      "error_type", "traceback", "wall_seconds", "host", "pid"})
 
 
 @dataclasses.dataclass(frozen=True)

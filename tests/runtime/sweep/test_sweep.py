@@ -33,7 +33,7 @@ from myriad.runtime.sweep import (
     run_sweep,
 )
 from myriad.runtime.sweep.table import columns, csv_text, markdown
-from myriad.runtime.sweep.tasks import run
+from myriad.runtime.sweep.tasks import error_record, run
 
 # Two cheap methods: a seeded start state (so the seeds differ) and a solve cut off after one iteration (a failure).
 PERTURBED = "pert=solve:transcription=trapezoidal,intervals=10,x0_std=0.1,resimulate=false"
@@ -140,6 +140,20 @@ def test_a_task_that_raises_is_an_error_record_not_a_crash():
     assert unknown["status"] == "error" and "no_such_system" in unknown["message"]
 
 
+def test_the_table_names_a_spec_by_its_system_name_not_its_path(tmp_path, monkeypatch):
+    monkeypatch.setenv("MYRIAD_CACHE", str(tmp_path))  # the compiled spec goes here, not to the user's cache
+    (tmp_path / "mine").mkdir()
+    spec = tmp_path / "mine" / "simple_case.yaml"
+    spec.write_text((Path(__file__).parents[3] / "specs" / "simple_case.yaml").read_text())
+    task = SweepConfig([str(spec)], [PERTURBED], cache_dir=None).tasks()[0]
+    rec = run(task)
+    assert rec["status"] == "ok" and rec["system"] == str(spec) and rec["system_name"] == "simple_case"
+    row = markdown([rec]).splitlines()[2]
+    assert row.startswith("| simple_case | pert | 0 | ok |") and "yaml" not in row
+    failed = markdown([error_record(task, ValueError("no"))])  # failed before loading: the path
+    assert f"- {spec} / pert / seed 0: error" in failed
+
+
 def test_a_record_a_backend_lost_is_reported_as_an_error():
     class Lossy(AbstractBackend):
         name = "lossy"
@@ -183,6 +197,20 @@ def test_cli_checks_arguments_before_any_work(argv, words, capsys, tmp_path, mon
 def test_cli_refuses_an_unknown_system_before_any_work(capsys):
     assert main(["sweep", "simple_case", "no_such_system"]) == 2
     assert "'no_such_system' is neither a shipped system" in capsys.readouterr().err
+
+
+def test_cli_ray_without_a_cluster_is_a_usage_error_with_the_fix(capsys, monkeypatch):
+    ray = pytest.importorskip("ray")
+
+    def no_cluster(*args, **kwargs):  # what ray.init raises when nothing runs at the address (no cluster started)
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", no_cluster)
+    assert main(["sweep", "simple_case", "--backend", "ray", "--address", "auto", "--no-cache"]) == 2
+    err = capsys.readouterr().err
+    assert "--address auto: no Ray cluster" in err and "ray start --head" in err
+    assert "internal error" not in err
 
 
 def test_cli_prints_one_table_and_writes_json_csv_markdown(serial_records, capsys, tmp_path):
