@@ -50,3 +50,15 @@ def test_right_shapes_still_pass(cartpole):
     assert data.x0.shape == (4,) and data.params["g"].shape == ()
     batch = batch_data(cartpole, params={"g": [9.8, 9.81]}, x0=[[0.0] * 4] * 2)
     assert batch.x0.shape == (2, 4) and batch.params["g"].shape == (2,)
+
+
+def test_the_gymnasium_envs_check_their_data_too():
+    pytest.importorskip("gymnasium")
+    from myriad.runtime.rl import MyriadVectorEnv, make
+
+    with pytest.raises(ValueError, match=r"x0 has 3 values, expected shape \(4,\): cartpole has 4 states"):
+        make("cartpole", x0=[0.0, 0.0, 0.0])
+    with pytest.raises(KeyError, match=r"did you mean 'm1'"):
+        make("cartpole", params={"m_1": 1.0})
+    with pytest.raises(ValueError, match=r"x0 has shape \(2, 3\), expected shape \(2, 4\)"):
+        MyriadVectorEnv("cartpole", num_envs=2, x0=[[0.0] * 3] * 2)
