@@ -7,6 +7,7 @@ none, an output file whose folder is missing or not writable, ...) are found bef
 from __future__ import annotations
 
 import argparse
+import difflib
 import json
 import os
 import sys
@@ -23,6 +24,30 @@ class _Parser(argparse.ArgumentParser):
         self.print_usage(sys.stderr)
         print(f"myriad: error: {message}", file=sys.stderr)
         raise SystemExit(2)
+
+    def _get_value(self, action, arg_string):
+        # A choice matches case-insensitively where only one choice folds to it (--solver IPOPT is ipopt).
+        value = super()._get_value(action, arg_string)
+        if action.choices is not None and isinstance(value, str) and value not in action.choices:
+            folded = [c for c in action.choices if isinstance(c, str) and c.lower() == value.lower()]
+            if len(folded) == 1:
+                return folded[0]
+        return value
+
+    def _check_value(self, action, value):
+        if action.choices is not None and value not in action.choices:
+            names = [str(c) for c in action.choices]
+            close = difflib.get_close_matches(str(value), names, n=3)
+            hint = f"did you mean {' or '.join(close)}?" if close else f"choose from {', '.join(names)}"
+            raise argparse.ArgumentError(action, f"invalid choice {value!r}; {hint}")
+
+    def reject_unknown(self, extras):
+        """Exit 2 naming the first unknown argument, with the closest of this parser's flags."""
+        flag = extras[0].split("=", 1)[0]
+        known = [o for a in self._actions for o in a.option_strings]
+        close = difflib.get_close_matches(flag, known, n=3) if flag.startswith("-") else []
+        hint = f"; did you mean {' or '.join(close)}?" if close else f"; see {self.prog} --help"
+        self.error(f"unrecognized argument {extras[0]}{hint}")
 
 
 # SolveConfig's flags where they are not --field-name, and their usage-line names.
@@ -295,7 +320,10 @@ def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     command = next((a for a in argv if not a.startswith("-")), None)
     parser = _parser(command if command in _OWN_PARSER_ONLY else None)
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras:  # reported by the subcommand's parser: its usage, its flags (argparse would show the top level's)
+        sub = parser._subparsers._group_actions[0].choices.get(args.command) if args.command else None
+        (sub or parser).reject_unknown(extras)
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2

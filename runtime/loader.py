@@ -7,6 +7,7 @@ and the compiler's own source, so editing either recompiles and nothing stale is
 
 from __future__ import annotations
 
+import difflib
 import functools
 import hashlib
 import importlib.util
@@ -44,21 +45,22 @@ def _compiler_fingerprint() -> str:
 
 
 def load(target: str | os.PathLike) -> System:
-    """The system for a shipped name (``"pendulum"``) or a spec file path (``"my/spec.yaml"``).
+    """The system for a shipped name (``"pendulum"``), a peer problem (``"peers/hypersensitive"``, or its bare name
+    where no shipped system has it) or a spec file path (``"my/spec.yaml"``). Names match case-insensitively where
+    that is unambiguous.
 
     Raises:
-        KeyError: an unknown name that is not a file either.
+        KeyError: an unknown name that is not a file either (with the closest names), or a missing spec file.
         myriad.compiler.SpecError: the spec at the path is invalid (the message points into the file).
     """
     text = os.fspath(target)
+    path = Path(text)
+    if text not in _registry.MODULES and not path.is_file():
+        text = _resolve_name(text)
     if text in _registry.MODULES and not text.endswith((".yaml", ".yml")):
         return _registry.get(text)
-    path = Path(text)
     if text.startswith(PEER_PREFIX) and not path.is_file():
         return _peer(text[len(PEER_PREFIX):])
-    if not path.is_file():
-        raise KeyError(f"{text!r} is neither a shipped system ({', '.join(_registry.NAMES)}), a peer problem "
-                       f"({PEER_PREFIX}NAME) nor a spec file")
     from myriad.compiler import compile_file  # the compiler (sympy) is only needed for specs loaded by path
 
     raw = path.read_bytes()
@@ -86,5 +88,43 @@ def _peer(name: str) -> System:
     from .systems import peers
 
     if name not in peers.NAMES:
-        raise KeyError(f"unknown peer problem {name!r}; the peer collection: {', '.join(peers.NAMES)}")
+        close = difflib.get_close_matches(name, peers.NAMES, n=3)
+        hint = f"did you mean {' or '.join(PEER_PREFIX + n for n in close)}? " if close else ""
+        raise KeyError(f"unknown peer problem {name!r}; {hint}the peer collection: {', '.join(peers.NAMES)}")
     return peers.get(name)
+
+
+def _names() -> dict[str, str]:
+    """Every name :func:`load` takes without a file: the shipped systems, then the peers by bare name (where no
+    shipped system has it) and as ``peers/NAME``; each mapped to its canonical form."""
+    from .systems import peers
+
+    names = {n: n for n in _registry.NAMES}
+    for n in peers.NAMES:
+        names.setdefault(n, PEER_PREFIX + n)
+        names[PEER_PREFIX + n] = PEER_PREFIX + n
+    return names
+
+
+def _resolve_name(text: str) -> str:
+    """The canonical name of ``text`` (a name, not an existing file); ``KeyError`` with the fix where there is none."""
+    names = _names()
+    if text in names:
+        return names[text]
+    folded = {}
+    for n in names:
+        folded.setdefault(n.lower(), set()).add(names[n])
+    if len(folded.get(text.lower(), ())) == 1:
+        return next(iter(folded[text.lower()]))
+    is_path = text.endswith((".yaml", ".yml")) or os.sep in text or bool(os.altsep and os.altsep in text)
+    if text.startswith(PEER_PREFIX) and not text.endswith((".yaml", ".yml")):
+        return text  # _peer refuses it with the collection's names
+    if is_path:
+        raise KeyError(f"file not found: {text}")
+    close = difflib.get_close_matches(text, [n for n in names if not n.startswith(PEER_PREFIX)], n=3)
+    if close:
+        hint = f"did you mean {' or '.join(close)}?"
+    else:
+        peers = ", ".join(n for n in names if n.startswith(PEER_PREFIX))
+        hint = f"shipped: {', '.join(_registry.NAMES)}; peers: {peers}"
+    raise KeyError(f"{text!r} is neither a shipped system, a peer problem ({PEER_PREFIX}NAME) nor a spec file; {hint}")
