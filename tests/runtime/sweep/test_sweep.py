@@ -14,6 +14,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -200,13 +201,14 @@ def test_cli_refuses_an_unknown_system_before_any_work(capsys):
 
 
 def test_cli_ray_without_a_cluster_is_a_usage_error_with_the_fix(capsys, monkeypatch):
-    ray = pytest.importorskip("ray")
-
     def no_cluster(*args, **kwargs):  # what ray.init raises when nothing runs at the address (no cluster started)
         raise ConnectionError("Could not find any running Ray instance.")
 
-    monkeypatch.setattr(ray, "is_initialized", lambda: False)
-    monkeypatch.setattr(ray, "init", no_cluster)
+    # A stand-in module, not the real one patched: Ray reads its authentication settings once, when first imported,
+    # and the real-cluster test below sets them before it imports Ray.
+    fake = types.ModuleType("ray")
+    fake.is_initialized, fake.init = (lambda: False), no_cluster
+    monkeypatch.setitem(sys.modules, "ray", fake)
     assert main(["sweep", "simple_case", "--backend", "ray", "--address", "auto", "--no-cache"]) == 2
     err = capsys.readouterr().err
     assert "--address auto: no Ray cluster" in err and "ray start --head" in err
