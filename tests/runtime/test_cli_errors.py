@@ -52,3 +52,10 @@ def test_systems_resolve_by_bare_peer_name_and_case_insensitively():
     assert load("Van_Der_Pol") is load("van_der_pol")
     with pytest.raises(KeyError, match="file not found"):
         load("missing.yaml")
+
+
+def test_a_misspelt_command_suggests_the_closest_and_any_case_is_taken(capsys):
+    assert main(["solv", "van_der_pol"]) == 2
+    assert "invalid choice 'solv'; did you mean solve?" in capsys.readouterr().err
+    assert main(["SWEEP", "simple_case", "--backend", "Serial", "--workers", "2"]) == 2  # reached the sweep's checks
+    assert "--workers applies to --backend process or ray" in capsys.readouterr().err
