@@ -6,6 +6,7 @@ Exit codes: 0 ok, 1 spec errors or stale output (``--check``), 2 usage. No trace
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import time
 from pathlib import Path
@@ -86,7 +87,10 @@ def _resolve(target: str) -> Path:
     for base in (Path("specs"), REPO_SPECS):
         if (base / f"{target}.yaml").exists():
             return base / f"{target}.yaml"
-    raise FileNotFoundError(f"no spec named {target!r} (looked for specs/{target}.yaml)")
+    names = sorted({q.stem for base in (Path("specs"), REPO_SPECS) if base.is_dir() for q in base.glob("*.yaml")})
+    close = difflib.get_close_matches(target, names, n=3)
+    hint = f"; did you mean {' or '.join(close)}?" if close else ""
+    raise FileNotFoundError(f"no spec named {target!r} (looked for specs/{target}.yaml){hint}")
 
 
 def _cmd_build(args) -> int:

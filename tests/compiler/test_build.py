@@ -169,6 +169,11 @@ def test_cli_usage_errors_exit_2(argv, code, capsys):
     assert "Traceback" not in capsys.readouterr().err
 
 
+def test_cli_suggests_the_closest_spec_name(capsys):
+    assert main(["show", "van_der_poll"]) == 2
+    assert "did you mean van_der_pol?" in capsys.readouterr().err
+
+
 def test_cli_list_and_show(capsys, monkeypatch):
     monkeypatch.chdir(ROOT)
     assert main(["list"]) == 0
