@@ -48,8 +48,8 @@ import optax
 
 from ..integrators import INTEGRATORS, RK4, AbstractIntegrator, rollout
 
-__all__ = ["SCALES", "TRACES", "Layout", "fit_integrator", "layout", "state_scale", "train_epoch", "trajectory_loss",
-           "validation_loss", "window_losses"]
+__all__ = ["SCALES", "TRACES", "WindowLayout", "fit_integrator", "layout", "state_scale", "train_epoch",
+           "trajectory_loss", "validation_loss", "window_losses"]
 
 SCALES = ("none", "range", "data")
 
@@ -96,7 +96,7 @@ def state_scale(system: Any, states: Any, scale: str) -> np.ndarray:
     return s
 
 
-class Layout:
+class WindowLayout:
     """Where the windows of a loss start and how each predicted node is weighted (host arrays, fixed shapes).
 
     Attributes:
@@ -110,10 +110,10 @@ class Layout:
         self.starts, self.window, self.weights, self.count = starts, window, weights, count
 
     def __repr__(self) -> str:
-        return f"Layout(window={self.window}, starts={self.starts.tolist()}, count={self.count})"
+        return f"WindowLayout(window={self.window}, starts={self.starts.tolist()}, count={self.count})"
 
 
-def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma: float = 1.0) -> Layout:
+def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma: float = 1.0) -> WindowLayout:
     """The window layout over N = ``n_steps`` intervals (see the module docstring).
 
     Args:
@@ -136,10 +136,10 @@ def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma:
     cover = np.bincount(nodes.ravel(), minlength=n_steps + 1)
     disc = gamma ** np.arange(1, window + 1, dtype=np.float64)
     weights = disc[None, :] / cover[nodes]
-    return Layout(starts, window, weights, int(np.count_nonzero(cover)))
+    return WindowLayout(starts, window, weights, int(np.count_nonzero(cover)))
 
 
-def window_losses(model: Any, integrator: AbstractIntegrator, lay: Layout, theta: Any, spec_params: Any,
+def window_losses(model: Any, integrator: AbstractIntegrator, lay: WindowLayout, theta: Any, spec_params: Any,
                   t0: Any, h: Any, controls: Any, states: Any, inv_scale: Any) -> jax.Array:
     """Per-trajectory losses (B,): sum_{s,l} c gamma^l ||(x~ - x) / s||^2 / (K n), see the module docstring.
 
