@@ -14,6 +14,8 @@ from .simulate import simulate as simulate
 from .solve import Solution as Solution
 from .solve import solve as solve
 from .solve import solve_batch as solve_batch
+from .solve_config import METHODS as METHODS
+from .solve_config import SolveConfig as SolveConfig
 from .solvers import SLSQP as SLSQP
 from .solvers import Extragradient as Extragradient
 from .solvers import InteriorPoint as InteriorPoint
@@ -31,5 +33,5 @@ __all__ = [
     "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable", "UnsupportedFeature",
     "Euler", "Heun", "Midpoint", "RK4", "Adaptive",
     "SingleShooting", "MultipleShooting", "Trapezoidal", "HermiteSimpson", "ForwardBackwardSweep",
-    "Ipopt", "SLSQP", "Extragradient", "InteriorPoint",
+    "Ipopt", "SLSQP", "Extragradient", "InteriorPoint", "METHODS", "SolveConfig",
 ]
