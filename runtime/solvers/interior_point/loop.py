@@ -31,7 +31,7 @@ fraction-to-the-boundary rule shrinks the steps geometrically.
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -59,7 +59,7 @@ from .rules import (
     fraction_to_boundary,
 )
 
-__all__ = ["InteriorPointSolution", "InteriorPointStepper", "WarmStart", "make_solve_fn"]
+__all__ = ["InteriorPointSolution", "InteriorPointStepper", "WarmStart"]
 
 RUNNING = -1
 MU_INIT = 0.1
@@ -73,7 +73,7 @@ WARM_MU, WARM_PUSH = 1e-6, 1e-9
 
 @register_namedtuple  # it crosses a stored program's boundary
 class WarmStart(NamedTuple):
-    """Where a solve starts, in the barrier problem's own terms: a cold start (:func:`make_solve_fn`'s ``cold``,
+    """Where a solve starts, in the barrier problem's own terms: a cold start (:meth:`InteriorPointStepper.cold`,
     IPOPT's defaults) or the end of an earlier solve (``InteriorPointSolution.warm``: its point, multipliers and
     scaling, restarted at ``mu = WARM_MU``). Every field is a float array, so a batch or a ``jnp.where`` between a
     cold and a warm start is one program; ``fresh`` (1.0 or 0.0) says to measure the scaling at the start."""
@@ -176,17 +176,6 @@ class _Filter(NamedTuple):
     f_phi: jax.Array
     a_min: jax.Array
     tiny: jax.Array  # the step is negligible against x
-
-
-def make_solve_fn(layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
-                  second_order_correction: bool = True) -> tuple[Callable[[Any, Any], InteriorPointSolution],
-                                                                 Callable[[Any, Any], WarmStart], Stepper]:
-    """``(solve, cold, stepper)`` of an :class:`InteriorPointStepper`: the pure solve ``(data, start) ->
-    InteriorPointSolution``, where ``start`` is the NLP's variables ``z0`` or a :class:`WarmStart`; ``cold(data, z0)
-    -> WarmStart``, IPOPT's default start from ``z0``; and the :class:`~myriad.runtime.solvers.stepper.Stepper`
-    (``solve`` is its ``solve``). None is jitted."""
-    stepper = InteriorPointStepper(layout, tol, constr_viol_tol, max_iter, second_order_correction)
-    return stepper.stepper.solve, stepper.cold, stepper.stepper
 
 
 class InteriorPointStepper:

@@ -114,7 +114,7 @@ def test_interior_point_solves_the_same_either_way():
     import dataclasses
 
     from myriad.runtime.solvers.base import ScaledProblem
-    from myriad.runtime.solvers.interior_point.loop import make_solve_fn
+    from myriad.runtime.solvers.interior_point.loop import InteriorPointStepper
     from myriad.runtime.solvers.interior_point.problem import Layout
 
     system = load("van_der_pol")
@@ -124,7 +124,7 @@ def test_interior_point_solves_the_same_either_way():
     staged = ScaledProblem.from_nlp(nlp)
     out = []
     for problem in (staged, dataclasses.replace(staged, derivatives=None)):
-        solve_fn, *_ = make_solve_fn(Layout(problem), tol=1e-8, constr_viol_tol=1e-8, max_iter=200)
+        solve_fn = InteriorPointStepper(Layout(problem), tol=1e-8, constr_viol_tol=1e-8, max_iter=200).stepper.solve
         out.append(jax.jit(solve_fn)(data, z0))
     assert int(out[0].status) == int(out[1].status) == 0
     assert int(out[0].iterations) == int(out[1].iterations)
