@@ -109,7 +109,7 @@ def run(args) -> int:
     report = run_e2e(system, config, transcription=transcription, checkpoint_dir=args.checkpoint,
                      resume=args.resume, expert=expert)
     rec = report.record()
-    print(f"{report.system}: {config.model} model, {config.gradient} gradients (K = {config.unroll}), "
+    print(f"{report.system}: {config.model} model, {config.adjoint.name} gradients (K = {config.adjoint.unroll}), "
           f"{report.iterations} iterations in {report.train_seconds:.1f} s ({report.status})")
     for name, value in report.learned.items():
         true = report.true.get(name)
@@ -144,8 +144,8 @@ def _plots(report, folder: Path) -> None:
     from .plots import plot_loss, plot_training
 
     folder.mkdir(parents=True, exist_ok=True)
-    label = f"{report.system} ({report.config.model}, {report.config.gradient})"
-    expert = report.evaluation.expert
+    label = f"{report.system} ({report.config.model}, {report.config.adjoint.name})"
+    expert = report.evaluation.optimum
     if report.history:
         print(f"  plot: {plot_loss(report.history, folder / 'loss.png', f'{label}: imitation loss')}")
     if report.snapshots:

@@ -10,15 +10,14 @@ import numpy as np
 
 from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.models import MODELS as _REGISTRY
-from ..solvers.adjoint import ADJOINTS, Implicit, Unrolled, adjoint
+from ..solvers.adjoint import Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
 
-__all__ = ["E2EConfig", "GRADIENTS", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
+__all__ = ["E2EConfig", "INITS", "LOSSES", "MODELS", "ON_FAILURE"]
 
 MODELS = tuple(_REGISTRY)  # the learning kit's model names (one spelling each)
 INITS = ("guess", "sysid")
-GRADIENTS = tuple(ADJOINTS)  # the adjoints' names, which E2EConfig(adjoint=...) also reads
 LOSSES = ("controls", "states", "both")
 ON_FAILURE = ("skip", "unrolled", "backtrack")
 
@@ -37,8 +36,7 @@ class E2EConfig:
             mode through K warm-started extragradient steps, or ``Implicit()``, the implicit function theorem at a
             converged solve (``Implicit(fallback_steps=K)``: K of the unrolled fallback, ``on_failure="unrolled"``);
             K = None is 10 for a parametric model, 5 for a Neural ODE, as published. A name (``"unrolled"``,
-            ``"implicit"``) is read as that adjoint with the default K. ``gradient`` (its name) and ``unroll``
-            (its K) are read-only views.
+            ``"implicit"``) is read as that adjoint with the default K.
         iterations: the most outer iterations (one optimiser update each).
         optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
             learned cost weights together).
@@ -147,16 +145,6 @@ class E2EConfig:
                 raise ValueError(f"E2EConfig: soft_state_bounds must be None or a finite factor > 0, got {soft!r}")
             object.__setattr__(self, "soft_state_bounds", float(soft))
         self._check_init()
-
-    @property
-    def gradient(self) -> str:
-        """The adjoint's name: ``"unrolled"`` or ``"implicit"``."""
-        return self.adjoint.name
-
-    @property
-    def unroll(self) -> int:
-        """K, the extragradient steps of an unrolled gradient (the adjoint's; the fallback's with ``Implicit``)."""
-        return self.adjoint.unroll
 
     def _check_init(self) -> None:
         from ..sysid.run import SysidConfig  # lazily: the sysid runner is only needed for init="sysid"

@@ -30,6 +30,7 @@ import numpy as np
 
 from ..learn import loop
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
+from ..learn.evaluate import Evaluation, evaluate
 from ..learn.identity import arrays_id, tree_id
 from ..learn.loop import Step, Stop, check_run, checkpoint_path
 from ..learn.models import Parametric, make_model
@@ -42,7 +43,6 @@ from ..system import System
 from ..transcriptions import SingleShooting
 from ..transcriptions.base import transcribe
 from .config import E2EConfig
-from .evaluate import E2EEvaluation, evaluate_learned
 from .expert import expert_from_dataset
 from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights
 
@@ -83,7 +83,7 @@ class E2EReport:
     iterations: int
     train_seconds: float
     compile_count: int
-    evaluation: E2EEvaluation
+    evaluation: Evaluation
     init_seconds: float = 0.0
 
     @property
@@ -93,14 +93,20 @@ class E2EReport:
     def record(self) -> dict[str, Any]:
         ev = self.evaluation.record()
         last = self.history[-1][1] if self.history else math.nan
-        return {"system": self.system, "model": self.config.model, "gradient": self.config.gradient,
-                "unroll": self.config.unroll, "learned": self.learned, "true": self.true,
-                "imitation_loss": json_number(last), **ev, "train_seconds": round(self.train_seconds, 3),
+        return {"system": self.system, "model": self.config.model, "gradient": self.config.adjoint.name,
+                "unroll": self.config.adjoint.unroll, "learned": self.learned, "true": self.true,
+                "imitation_loss": json_number(last), **{k: ev[k] for k in _RECORDED},
+                "train_seconds": round(self.train_seconds, 3),
                 "init": "theta0" if self.init_seconds < 0 else _init_name(self.config),
                 "init_seconds": round(max(self.init_seconds, 0.0), 3),
                 "iterations": self.iterations, "seed": self.config.seed, "counts": self.counts,
                 "compile_count": self.compile_count, "status": str(self.status), "converged": bool(self.converged),
                 "message": self.message}
+
+
+# The evaluation's fields in an end-to-end record (the plan's own message and the adaptive re-simulation are not).
+_RECORDED = ("achieved_cost", "achieved_defect", "optimal_cost", "optimal_defect", "relative_gap",
+             "plan_imitation_loss", "planned_cost", "plan_status", "reaim")
 
 
 def expert_id(expert: Solution, system: System) -> str:
@@ -244,7 +250,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     (train, frozen, consts, true), start_id, init_seconds = _start(system, model, config, learned, theta0,
                                                                     transcription, progress, resuming)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])),
-                     solved if config.gradient == "implicit" else transcription)
+                     solved if config.adjoint.name == "implicit" else transcription)
     data0 = _data0(consts, train, frozen, model)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
     if expert.controls.shape != grid:
@@ -257,7 +263,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
         desc = {**desc, "theta0": start_id}
         config_id = hashlib.sha256(f"{config_id}\0{start_id}".encode()).hexdigest()
     run = _Imitation(program, (train, opt_state, carry, frozen), consts, config,
-                     f"{system.name} e2e ({config.model}, {config.gradient})")
+                     f"{system.name} e2e ({config.model}, {config.adjoint.name})")
     run.checkpoint = None if path is None else (path, expert_id(expert, system), config_id, desc)
     start = run.restore() if resuming else 0
     every = None if path is None else config.checkpoint_every or max(1, config.iterations // 10)
@@ -301,7 +307,8 @@ def _start(system: System, model: Any, config: E2EConfig, learned: tuple, theta0
 def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true: dict, expert: Solution,
             solved: Any, status: Stop, message: str, seconds: float, compiles: int,
             init_seconds: float) -> E2EReport:
-    """Judge the learned model on the true system (:func:`.evaluate.evaluate_learned`) and write the report."""
+    """Judge the learned model on the true system (:func:`~myriad.runtime.learn.evaluate.evaluate`: plan on it
+    with IPOPT, apply the plan, compare with the expert) and write the report."""
     counts, train, frozen, consts = run.counts, run.train, run.frozen, run.consts
 
     unsolved = counts["skipped"] + counts["fallback_unrolled"] + counts["backtracked"]
@@ -311,7 +318,8 @@ def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true
             f"{counts['fallback_unrolled']} unrolled instead, {counts['backtracked']} backtracked)")
     theta = model.combine(train["model"], frozen["model"])
     spec_params = {**consts["spec"], **train["cost"]}
-    evaluation = evaluate_learned(model, theta, spec_params, expert, solved, reaim=config.reaim)
+    evaluation = evaluate(model, theta, transcription=solved, optimum=expert,
+                          params={"spec": spec_params, "model": theta}, reaim=config.reaim)
     learned = {k: float(v) for k, v in theta.items()} if isinstance(model, Parametric) else {}
     learned.update({f"cost.{k}": float(v) for k, v in train["cost"].items()})
     if not evaluation.converged:

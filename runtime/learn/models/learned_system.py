@@ -70,8 +70,8 @@ class LearnedSystem(System):
         model.check_params(theta)
         true = model.system
         put = super().__setattr__
-        for name in _METADATA:
-            if hasattr(true, name):
+        for name in _METADATA:  # not the compiled functions (annotated on System too): a learned system has its own
+            if hasattr(true, name) and name not in vars(LearnedSystem):
                 put(name, getattr(true, name))
         put("model", model)
         put("theta", as_float(theta))

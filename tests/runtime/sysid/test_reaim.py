@@ -89,13 +89,11 @@ def test_cli_refuses_a_negative_reaim_before_work(capsys):
 @pytest.mark.slow
 def test_end_to_end_evaluation_re_aims_with_the_learned_parameters(wrong):
     from myriad.runtime.e2e.config import E2EConfig
-    from myriad.runtime.e2e.evaluate import evaluate_learned
-
     model, theta = wrong
-    spec = model.system.default_params()
+    params = {"spec": model.system.default_params(), "model": theta}
     expert = solve(model.system, resimulate=False)
-    plain = evaluate_learned(model, theta, spec, expert, None)
-    aimed = evaluate_learned(model, theta, spec, expert, None, reaim=4)
+    plain = evaluate(model, theta, optimum=expert, params=params)
+    aimed = evaluate(model, theta, optimum=expert, params=params, reaim=4)
     assert plain.reaim is None and max(map(abs, plain.achieved_defect)) > 0.1
     assert max(map(abs, aimed.achieved_defect)) < 1e-4 * max(map(abs, plain.achieved_defect))
     assert aimed.record()["reaim"]["kept"] == aimed.reaim.kept
