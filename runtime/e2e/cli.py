@@ -54,10 +54,6 @@ def add_parser(sub) -> None:
     add_training_outputs(s, "the training figure (plans over training) and the loss curve")
 
 
-def _usage(message: str) -> int:
-    return usage("e2e", message)
-
-
 def read_config(args):
     """The :class:`~myriad.runtime.e2e.config.E2EConfig` of the arguments (``ValueError``: a usage error)."""
     from ..configs import from_args
@@ -78,22 +74,23 @@ def run(args) -> int:
     from .config import E2EConfig
 
     if error := first_error(args):
-        return _usage(error)
+        return usage("e2e", error)
     if args.intervals < 1:
-        return _usage("--intervals must be at least 1")
+        return usage("e2e", "--intervals must be at least 1")
     try:
         config = read_config(args)
     except ValueError as exc:
-        return _usage(usage_message(exc, E2EConfig, {"optimizer": ("--lr",)}))
+        return usage("e2e", usage_message(exc, E2EConfig, {"optimizer": ("--lr",)}))
     from ..loader import load
 
     system = load(args.system)
     if config.model == "parametric" and not system.learnable:
-        return _usage(f"{system.name} declares no learnable parameters; use --model node, or mark parameters "
+        return usage("e2e", f"{system.name} declares no learnable parameters; use --model node, or mark parameters "
                       f"`learnable: true` (with a `guess`) in its spec")
     unknown = [n for n in config.learn_cost if n not in system.param_names]
     if unknown:
-        return _usage(f"--learn-cost {unknown}: not parameters of {system.name} ({', '.join(system.param_names)})")
+        return usage("e2e", f"--learn-cost {unknown}: not parameters of {system.name} "
+                            f"({', '.join(system.param_names)})")
     from ..transcriptions import SingleShooting
     from .train import run_e2e
 
@@ -105,7 +102,7 @@ def run(args) -> int:
             expert = expert_from_dataset(args.expert, system, transcription, split=args.expert_split,
                                          index=args.expert_index)
         except (OSError, ValueError) as exc:
-            return _usage(str(exc))
+            return usage("e2e", str(exc))
     report = run_e2e(system, config, transcription=transcription, checkpoint_dir=args.checkpoint,
                      resume=args.resume, expert=expert)
     rec = report.record()
@@ -141,13 +138,16 @@ def _loss(value) -> str:
 
 
 def _plots(report, folder: Path) -> None:
-    from .plots import plot_loss, plot_training
+    from ..learn.plots import plot_loss
+    from .plots import plot_training
 
     folder.mkdir(parents=True, exist_ok=True)
     label = f"{report.system} ({report.config.model}, {report.config.adjoint.name})"
     expert = report.evaluation.optimum
-    if report.history:
-        print(f"  plot: {plot_loss(report.history, folder / 'loss.png', f'{label}: imitation loss')}")
+    if report.history:  # the imitation loss and the planner's KKT residual (lighter); an exact 0 drawn at 1e-300
+        path = plot_loss(report.history, folder / "loss.png", f"{label}: imitation loss", xlabel="iteration",
+                         labels=("imitation loss", "planner KKT residual"), ylabel=None, floor=1e-300, second_alpha=0.6)
+        print(f"  plot: {path}")
     if report.snapshots:
         path = plot_training(report.model.system, expert.times, report.snapshots, expert.controls, expert.states,
                              folder / "training.png", f"{label}: plans over training (light: early), expert (black)")

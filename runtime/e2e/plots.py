@@ -1,5 +1,5 @@
 """The training figure (the published Figure 3: plans over the course of training drawn with low alpha, the expert
-on top) and the imitation-loss curve. PNG files, written atomically."""
+on top), a PNG written atomically."""
 
 from __future__ import annotations
 
@@ -8,10 +8,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..learn import plots as learn_plots
 from ..plotting import pyplot, save_png
 
-__all__ = ["plot_training", "plot_loss"]
+__all__ = ["plot_training"]
 
 
 def plot_training(system: Any, times: Any, snapshots: Sequence[tuple[int, Any, Any]], expert_controls: Any,
@@ -43,10 +42,3 @@ def plot_training(system: Any, times: Any, snapshots: Sequence[tuple[int, Any, A
     fig.suptitle(title, fontsize=10)
     save_png(fig, path)
     return os.fspath(path)
-
-
-def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLike, title: str) -> str:
-    """The imitation loss (and the planner's KKT residual, where there is one) against the iteration: the kit's loss
-    curve with end-to-end learning's labels (an exact 0 drawn at 1e-300, the residual lighter)."""
-    return learn_plots.plot_loss(history, path, title, labels=("imitation loss", "planner KKT residual"),
-                                 xlabel="iteration", ylabel=None, floor=1e-300, second_alpha=0.6)

@@ -34,7 +34,7 @@ from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
 
-__all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
+__all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights", "problem_data"]
 
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
@@ -106,8 +106,7 @@ class Program:
     # ---- the learned leaves and the problem data -------------------------------------------------------------
 
     def data(self, train: Any, frozen: Any, consts: Any) -> ProblemData:
-        theta = self.model.combine(train["model"], frozen["model"])
-        return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
+        return problem_data(self.model, train, frozen, consts)
 
     def loss(self, z: Any, data: ProblemData, weights: Any) -> tuple[jax.Array, tuple]:
         """``w_u mean ||u - u*||^2 + w_x mean ||x - x*||^2`` with ``weights = (w_u, w_x)`` (:func:`loss_weights`): an
@@ -216,6 +215,12 @@ class Program:
         metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == BACKTRACKED), used, SKIPPED),
                           iterations, scale, finite, *plan)
         return next_train, next_opt, carry, metrics
+
+
+def problem_data(model: Any, train: Any, frozen: Any, consts: Any) -> ProblemData:
+    """``D(tr)``: the model NLP's data of the learned leaves ``train`` (see the module docstring)."""
+    theta = model.combine(train["model"], frozen["model"])
+    return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
 
 
 def loss_weights(loss: str) -> jax.Array:

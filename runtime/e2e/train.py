@@ -1,17 +1,8 @@
-"""Algorithm 2 end to end: the expert, the compiled iteration in a loop with resets, checkpoints and a progress bar,
-then the learned model judged on the true system.
+"""Algorithm 2 end to end: the expert, the compiled iteration on the learning kit's loop, then the learned model
+judged on the true system (contracts: README.md in this folder).
 
-    report = run_e2e("cancer_treatment", E2EConfig(model="parametric"))
-    report.learned, report.record()["achieved_cost"]
-
-The iterations run in the learning kit's loop (:func:`~myriad.runtime.learn.loop.train`: its progress meter, its
-non-finite stop and checkpoint schedule, its :class:`~myriad.runtime.learn.loop.Stop` reasons). Checkpoints are the
-kit's (:mod:`myriad.runtime.learn.checkpoint`): the learned leaves as ``theta``, the optimiser state *and the
-planner's warm state* as ``opt_state``, the history ``(iteration, imitation loss, planner KKT residual)``, the
-expert's identity as the dataset identity, and the configuration's identity
-(:meth:`E2EConfig.identity`). A resumed run continues bit for bit on CPU; only ``iterations``, ``checkpoint_every``
-and ``snapshot_every`` may change. The stored plans of the training figure are not checkpointed: after a resume it
-shows the iterations since.
+Checkpoints store the planner's warm state with the optimiser state, and the expert's identity as the dataset's. The
+stored plans of the training figure are not checkpointed: after a resume it shows the iterations since.
 """
 
 from __future__ import annotations
@@ -44,7 +35,7 @@ from ..transcriptions import SingleShooting
 from ..transcriptions.base import transcribe
 from .config import E2EConfig
 from .expert import expert_from_dataset
-from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights
+from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights, problem_data
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
 
@@ -97,7 +88,8 @@ class E2EReport:
                 "unroll": self.config.adjoint.unroll, "learned": self.learned, "true": self.true,
                 "imitation_loss": json_number(last), **{k: ev[k] for k in _RECORDED},
                 "train_seconds": round(self.train_seconds, 3),
-                "init": "theta0" if self.init_seconds < 0 else _init_name(self.config),
+                "init": "theta0" if self.init_seconds < 0 else (
+                    self.config.init if isinstance(self.config.init, str) else "sysid"),
                 "init_seconds": round(max(self.init_seconds, 0.0), 3),
                 "iterations": self.iterations, "seed": self.config.seed, "counts": self.counts,
                 "compile_count": self.compile_count, "status": str(self.status), "converged": bool(self.converged),
@@ -117,15 +109,13 @@ def expert_id(expert: Solution, system: System) -> str:
 def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = None) -> tuple[Any, Any, dict, dict]:
     """``(train, frozen, consts, true)``: the learned leaves, the rest of theta, the spec's other parameters and x0,
     and the true values of the learned parameters (parametric and cost) by name."""
-    key = jax.random.key(config.seed)
-    theta = model.init_params(key, None)
+    theta = model.init_params(jax.random.key(config.seed), None)
     if theta0 is not None:
-        want, got = jax.tree.structure(theta), jax.tree.structure(theta0)
-        shapes = [jnp.shape(a) for a in jax.tree.leaves(theta)]
-        if want != got or shapes != [jnp.shape(a) for a in jax.tree.leaves(theta0)]:
+        try:
+            model.check_params(theta0)
+        except ValueError as exc:
             raise ValueError(f"{system.name}: theta0 does not fit the {config.model} model configured here (hidden "
-                             f"{config.hidden}, activation {config.activation!r}): expected {want} with leaves "
-                             f"{shapes}, got {got}")
+                             f"{config.hidden}, activation {config.activation!r}): {exc}") from None
         theta = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), theta0)
     true = {}
     if isinstance(model, Parametric):
@@ -251,7 +241,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
                                                                     transcription, progress, resuming)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])),
                      solved if config.adjoint.name == "implicit" else transcription)
-    data0 = _data0(consts, train, frozen, model)
+    data0 = problem_data(model, train, frozen, consts)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
     if expert.controls.shape != grid:
         raise ValueError(f"{system.name}: the expert's controls {expert.controls.shape} are not on the "
@@ -329,17 +319,6 @@ def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true
                      status=status, message=message or evaluation.message, iterations=len(run.history),
                      train_seconds=seconds, compile_count=compiles, evaluation=evaluation,
                      init_seconds=init_seconds)
-
-
-def _init_name(config: E2EConfig) -> str:
-    return config.init if isinstance(config.init, str) else "sysid"
-
-
-def _data0(consts, train, frozen, model):
-    from ..data import ProblemData
-
-    return ProblemData({"spec": {**consts["spec"], **train["cost"]},
-                        "model": model.combine(train["model"], frozen["model"])}, consts["x0"])
 
 
 _PROGRAMS: dict = {}

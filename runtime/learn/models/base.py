@@ -1,31 +1,13 @@
-"""The model interface of system identification: a learnable vector field that stands in for a system's dynamics.
+"""The model interface: a learnable vector field that stands in for a system's dynamics.
 
-A model ``M`` with parameters ``theta`` replaces the true dynamics ``f(x, u, t, p)`` of a
-:class:`~myriad.runtime.system.System` by
+A model ``M`` with parameters ``theta`` replaces the true dynamics ``f(x, u, t, p)`` by
+``M.vector_field(x, u, t, theta, p)`` and keeps everything else of the true system (horizon, x0, bounds, required
+final values, costs at the spec's parameters ``p``). ``theta`` is a pytree of arrays; the model object is a frozen,
+hashable dataclass holding only configuration, so it can be a static argument of ``jax.jit``.
 
-    x' = f_theta(x, u, t) = M.vector_field(x, u, t, theta, p),
-
-and keeps everything else of the true system: the horizon T, the initial state x0, the state and control bounds, the
-required final values and the costs ``L`` and ``phi`` (evaluated at the spec's parameters ``p``). ``theta`` is a pytree
-of arrays (data, differentiable, vmappable); the model object itself is a frozen, hashable dataclass holding only
-configuration, so it can be a static argument of ``jax.jit`` and two models with the same configuration are equal.
-
-Contract (see ``runtime/learn/README.md``):
-
-- ``init_params(key, data=None) -> theta``: starting parameters (float64 arrays);
-- ``vector_field(x, u, t, theta, spec_params) -> dx/dt``: pure, ``jit``/``vmap``/``grad``-able in ``theta``;
-- ``trainable(theta) -> pytree of bool`` with the structure of ``theta``: what an optimiser may change;
-- ``as_system(theta) -> LearnedSystem``: the model with these parameters as a ``System`` that ``solve`` takes.
-
-Applying the trainable mask in a fit: differentiate with respect to the trainable part only,
-
-    train, frozen = model.partition(theta)
-    grads = jax.grad(lambda tr: loss(model.combine(tr, frozen)))(train)   # frozen leaves are None in ``grads``
-    updates, state = opt.update(grads, state, train); train = optax.apply_updates(train, updates)
-
-or, on the whole ``theta``, ``optax.multi_transform({True: opt, False: optax.set_to_zero()}, model.trainable(theta))``.
-Note that ``optax.masked(opt, mask)`` alone is *not* enough: it passes the raw gradient of a masked-out leaf through
-as its update, so ``apply_updates`` would still move the normalisation constants.
+A fit differentiates with respect to the trainable part only (``model.partition``): ``optax.masked(opt, mask)`` alone
+is *not* enough, it passes the raw gradient of a masked-out leaf through as its update, so ``apply_updates`` would
+still move the normalisation constants.
 """
 
 from __future__ import annotations
@@ -97,13 +79,8 @@ class AbstractModel(abc.ABC):
 
     @abc.abstractmethod
     def init_params(self, key: Any = None, data: Any = None) -> Any:
-        """Starting parameters ``theta``: a pytree of float64 arrays.
-
-        Args:
-            key: a ``jax.random`` key (models without random initialisation ignore it).
-            data: a ``Trajectories`` (``controls (B, N+1, m)``, ``states (B, N+1, n)``) for data-dependent
-                initialisation (normalisation), or None.
-        """
+        """Starting parameters ``theta`` (float64 arrays) from a ``jax.random`` key and, for data-dependent
+        initialisation (normalisation), a ``Trajectories`` or None."""
 
     @abc.abstractmethod
     def vector_field(self, x: Any, u: Any, t: Any, theta: Any, spec_params: dict) -> Any:

@@ -5,29 +5,17 @@ For a model ``M`` of the true system ``S`` and parameters ``theta``, ``LearnedSy
     minimise   phi_S(x(T), T, p) + int_0^T L_S(x, u, t, p) dt
     subject to x' = M.vector_field(x, u, t, theta, p),  x(0) = x0_S,  S's bounds and required final values,
 
-with ``p`` the spec's parameters. Its parameter pytree is ``{"spec": p, "model": theta}`` (:meth:`default_params`),
-so everything that takes a ``System`` (``solve``, ``simulate``, every transcription and solver) takes it unchanged, and
-``theta`` travels as data: two learned systems of the same model configuration are equal and hash alike whatever
-their ``theta``, so a new ``theta`` reuses every compiled NLP (``transcribe`` is cached by the system).
+with ``p`` the spec's parameters. Its parameter pytree is ``{"spec": p, "model": theta}``, so ``theta`` travels as
+data: two learned systems of the same model configuration are equal and hash alike whatever their ``theta``, so a new
+``theta`` reuses every compiled NLP (``transcribe`` is cached by the system).
 
-Metadata: every class attribute of :class:`System` is copied from the true system (``name`` included, so reports line
-up; ``model_label`` tells the model). Derivative artefacts:
+Costs are the true system's at ``params["spec"]``. A ``spec_form`` model's (:class:`Parametric`) Jacobians, costates
+and u* are the true system's at its ``spec_form_params``, so the sweep works; any other model's come by autodiff of
+H = L + lambda . f, and its u* is not characterised (``optimal_control_kind = "none"``).
 
-- costs and their gradients, ``terminal_costate``: the true system's at ``params["spec"]``;
-- a ``spec_form`` model (:class:`Parametric`): Jacobians, Hamiltonian, costates and ``optimal_control`` are the true
-  system's at the model's ``spec_form_params`` (the spec's parameters with the learned ones in), so the sweep works;
-- any other model (:class:`NeuralODE`): Jacobians and costates by autodiff of H = L + lambda . f; u* is not
-  characterised, ``optimal_control_kind = "none"`` and ``optimal_control`` raises
-  :class:`~myriad.runtime.system.OptimalControlUnavailable` (the sweep refuses such a system up front).
-
-Overriding parameters: pass a new ``theta`` through ``model.as_system(theta)``; ``solve(..., params=...)`` replaces the
-top-level entries ``"spec"`` / ``"model"`` whole.
-
-Re-aiming (``aim``): the planner may be asked to steer the *model* to other final values than the true system's
-required ones, ``x_final - aim``, so that a plan whose model misses the true final state by ``aim`` lands on it in the
-true system (:mod:`..reaim`). Final values are constants of the compiled NLP, so ``aim`` is part of the system's
-identity (a new aim compiles a new NLP); a plan's own defect is against the aimed values, and the evaluation judges it
-on the true system against the true ones.
+Re-aiming (``aim``): the planner steers the *model* to ``x_final - aim``, so that a plan whose model misses the true
+final state by ``aim`` lands on it in the true system (:mod:`..reaim`). Final values are constants of the compiled
+NLP, so ``aim`` is part of the system's identity (a new aim compiles a new NLP).
 """
 
 from __future__ import annotations
@@ -47,21 +35,14 @@ _METADATA = tuple(System.__annotations__)  # every ClassVar of the base class
 
 
 class LearnedSystem(System):
-    """A learned model of a system, with its parameters, as a ``System`` (immutable).
+    """A learned model of a system, with its parameters, as a ``System`` (immutable; every class attribute of
+    ``System`` is the true system's, ``name`` included, so reports line up).
 
     Args:
-        model: the model (its ``system`` is the true system).
-        theta: the model's parameters (structure and shapes of ``model.init_params``).
+        model: the model (its ``system`` is the true system, kept as ``true_system``).
+        theta: the model's parameters (structure and shapes of ``model.init_params``, else ValueError).
         aim: None, or an offset (n_states,) subtracted from the required final values when planning (entries of
             free final states are ignored).
-
-    Attributes:
-        model, theta, true_system: as given (``true_system`` is ``model.system``).
-        model_label: ``model.label``.
-
-    Raises:
-        TypeError: ``model`` is not a model.
-        ValueError: ``theta`` of another structure or shape than the model's.
     """
 
     def __init__(self, model: AbstractModel, theta: Any, aim: Any = None):

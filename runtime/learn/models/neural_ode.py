@@ -11,16 +11,10 @@ output layer of width n_states. The parameters are
     theta = {"net": <tuple of equinox Linear layers: arrays only>,
              "norm": {"x_mean", "x_std", "u_mean", "u_std", "dx_mean", "dx_std"}}.
 
-The normalisation is computed once, from data (:meth:`NeuralODE.init_params`), and is not trained
-(:meth:`NeuralODE.trainable` is False on ``"norm"``). From a ``Trajectories`` (states (B, N+1, n), controls
-(B, N+1, m) on the grid t_k = k T / N) the means and standard deviations are taken over every node of every
-trajectory, and those of dx/dt over the forward differences (x_{k+1} - x_k) / (T / N). Each standard deviation is
-floored at ``1e-6 (1 + |mean|)`` so a constant channel does not divide by zero. Without data: the middle and the
-half-width of the bounds where both are finite, else mean 0 and standard deviation 1; for dx/dt mean 0 and the state's
-scale divided by T.
-
-The model object holds only the configuration (hashable, a static jit argument); the network's static structure is
-part of the pytree definition of ``theta["net"]``, so ``theta`` holds arrays only.
+The normalisation is computed once and not trained: from data, over every node of every trajectory (dx/dt over the
+forward differences), each standard deviation floored at ``1e-6 (1 + |mean|)`` so a constant channel does not divide
+by zero; without data, the middle and half-width of finite bounds (else 0 and 1), dx/dt with mean 0 and the state's
+scale divided by T. The network's static structure is part of the pytree definition of ``theta["net"]``.
 """
 
 from __future__ import annotations
@@ -50,13 +44,9 @@ class NeuralODE(AbstractModel):
     """An MLP vector field ``[x, u(, t / T)] -> dx/dt`` with input and output normalisation.
 
     Attributes:
-        system: the true system (sizes, horizon, bounds and costs).
         hidden: the hidden layers' widths, positive ints (a list is stored as a tuple); ``()`` is a linear model.
         activation: ``"sigmoid"`` (published), ``"softplus"``, ``"tanh"`` or ``"relu"``.
         time_input: also feed t / T to the network (a non-autonomous model).
-
-    Raises:
-        ValueError: a width that is not a positive int, an unknown activation.
     """
 
     hidden: tuple[int, ...] = (100, 100)
@@ -94,11 +84,7 @@ class NeuralODE(AbstractModel):
 
     def init_params(self, key: Any = None, data: Any = None) -> dict:
         """Network weights from ``key`` (equinox's default initialisation), normalisation from ``data`` (see the
-        module docstring).
-
-        Raises:
-            ValueError: ``key`` is None, or ``data`` of the wrong shape or with non-finite values.
-        """
+        module docstring)."""
         if key is None:
             raise ValueError("NeuralODE.init_params needs a jax.random key for the network's weights")
         widths = (self.n_inputs, *self.hidden, self.system.n_states)

@@ -5,14 +5,9 @@ For the spec's dynamics ``f(x, u, t, p)`` and a set ``S`` of learnable parameter
 
     f_theta(x, u, t) = f(x, u, t, p[S <- theta]),        theta = {name: value for name in S},
 
-i.e. the spec's parameter dict with the learnable entries replaced by ``theta``. Identification starts from the spec's
-``guess`` values (:meth:`Parametric.init_params`); :meth:`Parametric.true_params` gives the spec's own values, at which
-the model reproduces the true dynamics exactly.
-
-Because the vector field is the spec's dynamics at the parameters ``p[S <- theta]``, a :class:`LearnedSystem` of this
-model reuses the compiler's derivative artefacts (Jacobians, costates, u*) at those parameters, so the indirect
-method (the forward-backward sweep) works on it. The costs are always the true system's at the spec's values; the
-compiled specs' costs never use a learnable parameter (a test checks all of them), so the artefacts agree with them.
+starting from the spec's ``guess`` values. A :class:`LearnedSystem` of this model reuses the compiler's derivative
+artefacts (Jacobians, costates, u*) at ``p[S <- theta]``, so the forward-backward sweep works on it; the compiled
+specs' costs never use a learnable parameter (a test checks all of them), so the artefacts agree with the costs.
 
 A learnable parameter may be *structural* (Tumour's ``b``, ``d``, ``mu`` set its x0 and bounds): the learned system
 keeps the true system's x0, bounds and horizon, which is what identification wants (the world's constraints are
@@ -33,17 +28,8 @@ __all__ = ["Parametric"]
 
 @dataclasses.dataclass(frozen=True)
 class Parametric(AbstractModel):
-    """The spec's dynamics with the parameters ``learnable`` free.
-
-    Attributes:
-        system: the true system.
-        learnable: the names of the free parameters, a subset of ``system.learnable``; None (default) for all of
-            them. Stored as a tuple in the spec's order, so ``Parametric(s, ["delta", "r"])`` equals
-            ``Parametric(s, ("r", "delta"))``.
-
-    Raises:
-        ValueError: the system has no learnable parameters, a name that is not learnable, an empty or repeated list.
-    """
+    """The spec's dynamics with the parameters ``learnable`` free: a subset of ``system.learnable`` (None: all),
+    a tuple in the spec's order, so ``Parametric(s, ["delta", "r"])`` equals ``Parametric(s, ("r", "delta"))``."""
 
     learnable: tuple[str, ...] | None = None
 
