@@ -39,7 +39,8 @@ from ..integrators import INTEGRATORS, AbstractIntegrator, Heun, rollout
 from ..loader import load
 from ..system import System, UnsupportedFeature
 
-__all__ = ["Sampling", "Trajectories", "Dataset", "dataset_id", "make_dataset", "save_dataset", "load_dataset"]
+__all__ = ["Sampling", "Trajectories", "Dataset", "check_source", "dataset_id", "make_dataset", "save_dataset",
+           "load_dataset"]
 
 SCHEMES = ("random_walk", "uniform", "around")
 FORMAT, VERSION = "myriad.sysid.dataset", 1  # the name predates the kit; kept, so older files load
@@ -154,6 +155,19 @@ class Dataset:
     n_states = property(lambda self: self.train.states.shape[2])
     n_controls = property(lambda self: self.train.controls.shape[2])
     horizon = property(lambda self: float(self.times[-1]))
+
+
+def check_source(dataset: Any, system: System, who: str) -> None:
+    """``ValueError`` naming both when ``dataset`` was not generated from ``system``'s spec, or has other dimensions."""
+    if dataset.system != system.name:
+        raise ValueError(f"{who}: the dataset is of system {dataset.system!r} but the model is of {system.name!r}")
+    if dataset.spec_sha256 != system.spec_sha256:
+        raise ValueError(f"{who}: the dataset's spec (sha256 {dataset.spec_sha256}) is not the model's {system.name!r} "
+                         f"({system.spec_sha256}): regenerate the dataset for this spec")
+    xs, us = np.shape(dataset.train.states), np.shape(dataset.train.controls)
+    if len(xs) != 3 or len(us) != 3 or xs[0] < 1 or (xs[2], us[2]) != (system.n_states, system.n_controls):
+        raise ValueError(f"{who}: {system.name} needs training states (B >= 1, N+1, {system.n_states}) and controls "
+                         f"(B, N+1, {system.n_controls}), the dataset has {xs} and {us}")
 
 
 def _frozen(a: Any) -> np.ndarray:
@@ -291,10 +305,11 @@ def _arrays(d: Dataset) -> dict[str, np.ndarray]:
     return {"times": d.times, **{f"{s}_{w}": getattr(getattr(d, s), w) for s in _SPLITS for w in Trajectories._fields}}
 
 
-def _digest(arrays: dict[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
+def _digest(arrays: dict[str, np.ndarray], head: bytes = b"") -> str:
+    """SHA-256 of ``head``, then each array's name, shape and little-endian float64 bytes, by name."""
+    h = hashlib.sha256(head)
     for k in sorted(arrays):
-        h.update(f"{k}{arrays[k].shape}".encode() + np.ascontiguousarray(arrays[k], dtype="<f8").tobytes())
+        h.update(f"{k}{np.shape(arrays[k])}".encode() + np.ascontiguousarray(arrays[k], dtype="<f8").tobytes())
     return h.hexdigest()
 
 
@@ -358,13 +373,8 @@ def load_dataset(path: str | os.PathLike, system: System | str | os.PathLike | N
 def dataset_id(dataset: Dataset) -> str:
     """A SHA-256 of what a fit reads from a dataset: system, spec hash, grid, train and validation arrays (the
     identity a checkpoint checks)."""
-    h = hashlib.sha256(f"{dataset.system}\0{dataset.spec_sha256}\0".encode())
     arrays = {"times": dataset.times}
     for split in ("train", "validation"):
         tr = getattr(dataset, split)
         arrays[f"{split}.controls"], arrays[f"{split}.states"] = tr.controls, tr.states
-    for name, a in arrays.items():
-        a = np.ascontiguousarray(a, dtype="<f8")
-        h.update(f"{name}{a.shape}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
+    return _digest(arrays, f"{dataset.system}\0{dataset.spec_sha256}\0".encode())

@@ -40,10 +40,6 @@ def add_parser(sub) -> None:
     s.add_argument("--markdown", metavar="FILE", help="the printed table")
 
 
-def _usage(message: str) -> int:
-    return usage("sweep", message)
-
-
 def run(args) -> int:
     from ..compilation.jax_cache import compilation_cache_dir as resolve_cache_dir
     from .backends import BACKENDS
@@ -53,14 +49,14 @@ def run(args) -> int:
     from .table import markdown, write_tables
 
     if args.address is not None and args.backend != "ray":
-        return _usage("--address applies to --backend ray")
+        return usage("sweep", "--address applies to --backend ray")
     if args.workers is not None:
         if args.backend == "serial":
-            return _usage("--workers applies to --backend process or ray")
+            return usage("sweep", "--workers applies to --backend process or ray")
         if args.workers < 1:
-            return _usage("--workers must be at least 1")
+            return usage("sweep", "--workers must be at least 1")
     if error := first_error(args, files=("json", "csv", "markdown")):
-        return _usage(error)
+        return usage("sweep", error)
     cache_dir = None if args.no_cache else resolve_cache_dir(args.cache_dir)
     try:
         config = SweepConfig(systems=args.systems, methods=args.methods or ["solve"], seeds=args.seeds,
@@ -72,7 +68,7 @@ def run(args) -> int:
         backend.check()
         config.check_systems()
     except (ValueError, KeyError) as exc:
-        return _usage(exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc))
+        return usage("sweep", exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc))
     sizes = {"system": len(config.systems), "method": len(config.methods), "seed": len(config.seeds)}
     n = sizes["system"] * sizes["method"] * sizes["seed"]
     grid = " x ".join(f"{k} {w}{'s' * (k != 1)}" for w, k in sizes.items())
@@ -81,7 +77,7 @@ def run(args) -> int:
     try:
         records = run_sweep(config, backend)
     except BackendUnavailable as exc:
-        return _usage(str(exc))
+        return usage("sweep", str(exc))
     wall = time.perf_counter() - t0
     print(markdown(records), end="")
     counts = {s: sum(r["status"] == s for r in records) for s in ("ok", "failed", "error")}

@@ -25,11 +25,8 @@ __all__ = ["DEFAULT_CACHE_DIR", "Method", "SweepConfig", "parse_method"]
 
 @dataclasses.dataclass(frozen=True)
 class Method:
-    """A named kind with its settings; the settings are checked (and completed with the defaults) when built.
-
-    Raises:
-        ValueError: an unknown kind, an empty name, or settings the kind refuses.
-    """
+    """A named kind with its settings, checked (and completed with the defaults) when built: ``ValueError`` for an
+    unknown kind, an empty name, or settings the kind refuses."""
 
     name: str
     kind: str
@@ -66,10 +63,7 @@ def _split(text: str) -> list[str]:
 
 def parse_method(text: str) -> Method:
     """A :class:`Method` from ``[NAME=]KIND[:KEY=VALUE,...]`` (module docstring); the name defaults to the text.
-
-    Raises:
-        ValueError: a malformed text, an unknown kind or setting, or a bad value.
-    """
+    ``ValueError``: a malformed text, an unknown kind or setting, or a bad value."""
     name, body = None, text.strip()
     eq, colon = body.find("="), body.find(":")
     if eq >= 0 and (colon < 0 or eq < colon):
@@ -98,8 +92,7 @@ class SweepConfig:
         cache_dir: the JAX persistent compilation cache every worker uses (unless its process already set one);
             None: none. See the README.
 
-    Raises:
-        ValueError: an empty or repeated system, method name or seed, or a bad method.
+    ``ValueError``: an empty or repeated system, method name or seed, or a bad method.
     """
 
     systems: tuple[str, ...]
@@ -132,13 +125,9 @@ class SweepConfig:
                 for i, (s, m, seed) in enumerate(grid)]
 
     def check_systems(self) -> None:
-        """Load every system and ask every method's kind whether it can run there (before any work).
-
-        Raises:
-            KeyError: a system that is neither shipped nor a spec file.
-            ValueError: a method that cannot run on a system.
-            myriad.compiler.SpecError: an invalid spec file.
-        """
+        """Load every system and ask every method's kind whether it can run there (before any work): ``KeyError``
+        for a system neither shipped nor a spec file, ``ValueError`` for a method that cannot run on a system,
+        ``myriad.compiler.SpecError`` for an invalid spec file."""
         from ..loader import load
 
         for name in self.systems:

@@ -18,16 +18,9 @@ __all__ = ["run_sweep"]
 
 def run_sweep(config: SweepConfig, backend: AbstractBackend | None = None, *,
               progress: bool | None = None) -> list[dict[str, Any]]:
-    """Every task's record (see :mod:`.tasks`), sorted by ``index`` (systems, then methods, then seeds).
-
-    Args:
-        config: what to run.
-        backend: where (default :class:`SerialBackend`, in this process).
-        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
-
-    Returns:
-        One record per task; a failed task's has ``status`` ``"failed"`` or ``"error"`` (nothing is raised for it).
-    """
+    """Every task's record (see :mod:`.tasks`; a failed task's has ``status`` ``"failed"`` or ``"error"``, nothing is
+    raised for it), sorted by ``index`` (systems, then methods, then seeds). ``backend``: default
+    :class:`SerialBackend`, in this process; ``progress``: a tqdm bar on stderr (None: when stderr is a terminal)."""
     backend = backend or SerialBackend()
     tasks = config.tasks()
     records, bad = [], 0

@@ -36,10 +36,6 @@ def add_parser(sub) -> None:
     add_training_outputs(s, "loss curve, learned vs true trajectories, vector field (PNG)")
 
 
-def _usage(message: str) -> int:
-    return usage("sysid", message)
-
-
 def read_config(args):
     """The :class:`~myriad.runtime.sysid.run.SysidConfig` of the arguments (``ValueError``: a usage error)."""
     import dataclasses
@@ -62,17 +58,17 @@ def run(args) -> int:
     from .run import SysidConfig, failed, run_sysid
 
     if error := first_error(args):
-        return _usage(error)
+        return usage("sysid", error)
     try:
         config = read_config(args)
     except ValueError as exc:
-        return _usage(usage_message(exc, SysidConfig))
+        return usage("sysid", usage_message(exc, SysidConfig))
     from ..loader import load
 
     system = load(args.system)
     if config.model == "parametric" and not system.learnable:
-        return _usage(f"{system.name} declares no learnable parameters; use --model node, or mark parameters "
-                      f"`learnable: true` (with a `guess`) in its spec")
+        return usage("sysid", f"{system.name} declares no learnable parameters; use --model node, or mark "
+                              f"parameters `learnable: true` (with a `guess`) in its spec")
     report = run_sysid(system, config, checkpoint_dir=args.checkpoint, resume=args.resume)
     rec = report.record()
     print(f"{report.system}: {config.model} model by {config.method}, {report.train_seconds:.1f} s of fitting "

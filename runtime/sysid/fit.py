@@ -1,26 +1,17 @@
-"""Fit a model's parameters to trajectories: the published trajectory loss, minimised by an optax optimiser.
+"""Fit a model's parameters to trajectories: the loss of :mod:`.losses`, minimised by an optax optimiser.
 
-Each epoch visits the training trajectories once, in minibatches of a fixed shape: a permutation drawn from the
-run's PRNG key (``jax.random``, seeded by ``FitConfig.seed``), padded to a whole number of batches with repeated
-trajectories whose weight is 0, so every batch has the same shape and the epoch is one ``jax.jit``-compiled
-``lax.scan`` reused by every epoch (one compilation per curriculum stage; ``FitResult.compile_count`` counts the
-traces). A step differentiates the loss of :mod:`.losses` with respect to the *trainable* part of theta only
-(``model.partition``): frozen leaves (a Neural ODE's normalisation) get no gradient and no update.
+An epoch visits the training trajectories once, in minibatches of a fixed shape (a permutation drawn from
+``FitConfig.seed``, padded with repeats of weight 0), as one compiled ``lax.scan`` that every epoch of a curriculum
+stage reuses; only the trainable part of theta (``model.partition``) gets gradients. Every ``validate_every`` epochs
+the full-horizon, single-shooting validation loss (gamma = 1, whatever the training layout, so it compares across
+stages) selects the parameters returned. Stops (:class:`~myriad.runtime.learn.loop.Stop`): ``CONVERGED`` (validation
+loss <= ``tol``), ``EARLY_STOPPING`` (``patience`` validations without improvement in the last stage),
+``MAX_EPOCHS``, ``NON_FINITE`` (never a success: the best parameters are kept and the reason reported).
 
-Every ``validate_every`` epochs the validation loss is computed: always the full-horizon, single-shooting loss
-(gamma = 1, same scale), whatever the training layout, so it compares across curriculum stages and methods. The best
-parameters on validation are kept and returned (those of epoch 0, the start, if nothing improved on them). Stops
-(:class:`~myriad.runtime.learn.loop.Stop`): ``CONVERGED`` (validation loss <= ``tol``), ``EARLY_STOPPING``
-(``patience`` validations in a row without improvement, counted in the last curriculum stage only), ``MAX_EPOCHS``,
-``NON_FINITE`` (a training loss or gradient or a validation loss that is NaN/inf: the fit stops at once, keeps the
-best parameters, and reports the reason; it never reports success for it).
-
-The epochs run in the learning kit's loop (:func:`~myriad.runtime.learn.loop.train`); checkpoints
-(:mod:`~myriad.runtime.learn.checkpoint`) are written every ``checkpoint_every`` epochs and when the fit stops (never
-a non-finite state). ``resume=True`` continues from the last one, checking that it belongs to the same dataset and
-configuration (``epochs``, ``patience``, ``tol`` and ``checkpoint_every`` may change): with the same seed the result
-is the uninterrupted run's, bit for bit on CPU (a shorter run's closing validation, off the ``validate_every``
-schedule, comes after its last checkpoint, so a resume never replays it).
+Checkpoints (the kit's) are written every ``checkpoint_every`` epochs and at the stop, never of a non-finite state;
+``resume=True`` continues from the last one of the same dataset and configuration (``epochs``, ``patience``, ``tol``
+and ``checkpoint_every`` may change), bit for bit the uninterrupted run on CPU with the same seed (a shorter run's
+closing validation, off schedule, comes after its last checkpoint, so a resume never replays it).
 """
 
 from __future__ import annotations
@@ -38,7 +29,7 @@ import numpy as np
 import optax
 
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
-from ..learn.dataset import dataset_id
+from ..learn.dataset import check_source, dataset_id
 from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.loop import Step, Stop, check_run, checkpoint_path, train
 from ..learn.models import AbstractModel
@@ -60,20 +51,16 @@ class FitConfig:
     Attributes:
         optimizer: a learning rate for ``optax.adam`` (default 1e-3, the published setting), or an
             ``optax.GradientTransformation`` (pass the same object again to reuse the compiled epoch).
-        epochs: the most epochs (passes over the training set).
-        batch_size: trajectories per minibatch; None for the whole training set (published for parametric models).
-            A size above the training set's is clipped to it.
-        validate_every: epochs between validations.
+        epochs, validate_every: the most epochs (passes over the training set), and the epochs between validations.
+        batch_size: trajectories per minibatch (clipped to the training set's); None: all (the published setting).
         patience: validations without improvement before stopping early; None never stops early.
-        method: ``"single_shooting"`` (the published loss) or ``"multiple_shooting"`` (windows of ``window`` steps,
-            each from its observed start; see :mod:`.losses`).
-        window: the multiple-shooting window W (1..N); only with ``method="multiple_shooting"`` and no curriculum.
+        method, window: ``"single_shooting"`` (the published loss) or ``"multiple_shooting"`` in windows of W
+            (1..N) steps without a curriculum (see :mod:`.losses`).
         curriculum: a horizon curriculum: ``((W1, E1), ..., (WK, EK))`` trains E_i epochs with window W_i (the last
             E may be None: up to ``epochs``), or plain ``(W1, ..., WK)`` for equal shares of ``epochs``. Windows tile
             the trajectory under multiple shooting; under single shooting a stage fits the first W_i steps only.
         gamma: per-step weight gamma^l within each window, in (0, 1] (the published crude curriculum; 1: none).
-        scale: ``"none"`` (the published loss), ``"range"`` (errors divided by each state's range) or ``"data"`` (by its
-            spread in the training data; see :mod:`.losses`).
+        scale: the loss's state scale, ``"none"`` (the published loss), ``"range"`` or ``"data"`` (:mod:`.losses`).
         checkpoint_every: epochs between checkpoints (with ``checkpoint_dir``); None: every validation.
         seed: seeds the initial parameters and the minibatch order.
         tol: stop as converged when the validation loss is <= tol (0: only an exact fit).
@@ -165,16 +152,14 @@ class FitResult:
     """The outcome of :func:`fit`.
 
     Attributes:
-        theta: the best parameters on validation.
-        history: ``[(epoch, train_loss, val_loss), ...]`` at each validation; train_loss is the training objective
-            (its windows and gamma) averaged over the epoch's minibatches at their pre-update parameters.
-        best_validation_loss, best_epoch: the best validation loss and its epoch (0: the starting parameters).
-        epochs: the epochs completed (a resumed fit counts the earlier ones).
-        seconds: wall time of this call, compilation included.
-        stopped: a :class:`~myriad.runtime.learn.loop.Stop` (``MAX_EPOCHS``, ``CONVERGED``, ``EARLY_STOPPING`` or
-            ``NON_FINITE``); ``message`` says more.
-        compile_count: traces of the compiled epoch and validation functions in this call: at most one per
-            curriculum stage plus one, and 0 when an earlier fit of the same configuration and shapes compiled them.
+        theta: the best parameters on validation (those of epoch 0, the start, if nothing improved on them).
+        history: ``[(epoch, train_loss, val_loss), ...]`` at each validation; train_loss is the epoch's mean
+            training objective at the minibatches' pre-update parameters.
+        best_validation_loss, best_epoch: the best validation loss and its epoch (0: the start).
+        epochs: the epochs completed (a resumed fit counts the earlier ones); ``seconds``: this call's wall time.
+        stopped: a :class:`~myriad.runtime.learn.loop.Stop`; ``message`` says more.
+        compile_count: traces of the compiled functions in this call (at most one per curriculum stage plus one; 0
+            when an earlier fit of the same configuration and shapes compiled them).
         integrator: the label of the integrator the model was rolled out with.
     """
 
@@ -202,17 +187,9 @@ def _check(model, dataset, config, theta0, checkpoint_dir, resume, progress) -> 
         raise TypeError(f"fit: config must be a FitConfig, got {type(config).__name__}")
     if not all(hasattr(dataset, k) for k in ("times", "train", "validation", "system", "spec_sha256", "sampling")):
         raise TypeError(f"fit: dataset must be a sysid Dataset (make_dataset), got {type(dataset).__name__}")
-    system = model.system
-    if dataset.system != system.name:
-        raise ValueError(f"fit: the dataset is of system {dataset.system!r} but the model is of {system.name!r}")
-    if dataset.spec_sha256 != system.spec_sha256:
-        raise ValueError(f"fit: the dataset's spec (sha256 {dataset.spec_sha256[:12]}) is not the model's "
-                         f"({system.spec_sha256[:12]}) for {system.name!r}: regenerate the dataset")
-    tr, times = dataset.train, np.asarray(dataset.times, dtype=np.float64)
+    check_source(dataset, model.system, "fit")
+    times = np.asarray(dataset.times, dtype=np.float64)
     n_steps = times.shape[0] - 1
-    if tr.states.shape[0] < 1 or tr.states.shape[2] != system.n_states or tr.controls.shape[2] != system.n_controls:
-        raise ValueError(f"fit: {system.name} needs training states (B >= 1, N+1, {system.n_states}) and controls "
-                         f"(B, N+1, {system.n_controls}), got {tr.states.shape} and {tr.controls.shape}")
     if n_steps < 1 or not np.allclose(np.diff(times), (times[-1] - times[0]) / n_steps, rtol=1e-9, atol=0):
         raise ValueError("fit: the dataset's times must be a uniform grid of at least 2 nodes")
     stages = config.stages(n_steps)
@@ -223,11 +200,9 @@ def _check(model, dataset, config, theta0, checkpoint_dir, resume, progress) -> 
 
 
 def config_identity(model: Any, config: FitConfig, integrator: Any, stages: list, theta: Any) -> tuple[str, dict]:
-    """``(sha256, description)`` of what fixes a fit's sequence of iterates: the model's class and fields, the
-    optimiser, batch size, validation period, method, curriculum stages (all but the last one's end), gamma, scale,
-    seed, integrator and the trainable leaves' key paths; not ``epochs``, ``patience``, ``tol`` or
-    ``checkpoint_every``, which a resumed fit may change. A custom optax transformation is known only by its
-    ``init`` function's qualified name (and its state's leaves, checked on load): resume with the same one."""
+    """``(sha256, description)`` of what fixes a fit's sequence of iterates (all but what a resumed fit may change:
+    ``epochs``, ``patience``, ``tol``, ``checkpoint_every`` and the last stage's end). A custom optax transformation
+    is known only by its ``init`` function's qualified name (and its state's leaves, checked on load)."""
     desc = {
         "model": type(model).__name__, "system": model.system.name,
         "model_fields": {f.name: describe(getattr(model, f.name)) for f in dataclasses.fields(model)
@@ -348,18 +323,11 @@ class _FitRun:
 
 def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, theta0: Any = None,
         checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool | None = None) -> FitResult:
-    """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (see the module docstring).
-
-    Args:
-        model: a :class:`~myriad.runtime.learn.models.AbstractModel` of the dataset's system.
-        dataset: a :class:`~myriad.runtime.learn.dataset.Dataset`; the model is rolled out with its sampling's
-            integrator on its grid (RK4 on the same grid when the data came from the adaptive integrator:
-            :func:`.losses.fit_integrator`). Without validation trajectories the training set is used for selection.
-        config: a :class:`FitConfig`.
-        theta0: starting parameters (default ``model.init_params(key, dataset.train)``, key from ``config.seed``).
-        checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; None: none.
-        resume: continue from the checkpoint in ``checkpoint_dir`` if there is one (else start afresh).
-        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
+    """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (the training set where that is empty),
+    from ``theta0`` (default: ``model.init_params`` with a key from ``config.seed``); see the module docstring.
+    The model is rolled out on the data's grid by :func:`.losses.fit_integrator`. ``checkpoint_dir``: a folder for
+    ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; ``progress``: a tqdm bar on stderr (None: when
+    stderr is a terminal).
 
     Raises:
         TypeError, ValueError: bad arguments, a dataset of another system or spec, a window longer than the grid

@@ -4,36 +4,28 @@ For parameters theta, every fitted trajectory b, node k and state i the residual
 
     r_{b,k,i}(theta) = w_{b,k,i} (x~_{b,k,i}(theta) - x_{b,k,i}),     w_{b,k,i} = 1 / s_i  or 0,
 
-with x the observed states, s_i a per-state scale (the state's bound range where finite, else max |x_i| observed) so
-that states of different magnitudes weigh alike, and x~ the model rolled out by the dataset's own integrator on its
-grid under the observed controls:
+with x the observed states, s_i the per-state scale (``"range"``: :func:`.losses.state_scale`'s) and x~ the model
+rolled out by the dataset's own integrator on its grid under the observed controls:
 
 * single shooting: from each observed start x_{b,0} over the whole horizon, nodes k >= 1 (w = 0 at k = 0);
-* multiple shooting: in windows of ``window`` steps, the one starting at node j w from the observed x_{b,jw}
-  (x~ at node j w + l is l steps from there), which keeps the residuals of unstable or oscillating systems (Van der
-  Pol, Cart-Pole, a pendulum) from depending on the parameters through one long, sensitive rollout;
+* multiple shooting: in windows of ``window`` steps, each from the observed state at its first node, which keeps the
+  residuals of unstable or oscillating systems (Van der Pol, Cart-Pole) off one long, sensitive rollout;
 * ``fit_starts`` (single shooting, the default on noisy data): the starts xi_b are unknowns too, x~_{b,0} = xi_b,
   with residuals at k = 0; noisy observed starts would otherwise bias theta (errors in variables) and make the
-  standard errors overconfident. Multiple shooting starts every window at a noisy observation: prefer single
-  shooting with ``fit_starts`` for standard errors on noisy data.
+  standard errors overconfident (as multiple shooting's are on noisy data: each window starts at an observation).
 
 On noisy data, observations at a finite state bound are dropped (w = 0; ``drop_clipped``): the dataset clips noisy
 observations to the bounds, so they are censored, not Gaussian.
 
-The parameters are solved for in scaled form, theta = c p with c = theta0 where theta0 != 0 (else 1), so p starts
-at 1 and parameters of very different magnitudes (HIV's k = 4.4e-5 and T_max = 1400) are equally conditioned;
-results are in the original units. ``min_p 1/2 ||r(c p)||^2`` is one ``optimistix.least_squares`` call
-(Levenberg-Marquardt: Gauss-Newton steps J^T J dp = -J^T r regularised by a trust region), jit-compiled once per
-(model, integrator, shapes, options).
+The unknowns are scaled, theta = c p with c = theta0 where theta0 != 0 (else 1), so parameters of very different
+magnitudes (HIV's k = 4.4e-5 and T_max = 1400) are equally conditioned; ``min_p 1/2 ||r(c p)||^2`` is one
+``optimistix.least_squares`` call, jit-compiled once per (model, integrator, shapes, options).
 
-Standard errors come from the Gauss-Newton Hessian at the solution. With J = dr/dp (forward mode; reverse mode for
-data from an adaptive integrator, slower to compile), m residuals (w > 0) and K unknowns (P parameters, plus the
-starts), sigma^2 = RSS / (m - K) and Cov(p) = sigma^2 (J^T J)^-1 = sigma^2 V S^-2 V^T from the SVD J = U S V^T, so
-Cov(theta) = C Cov(p)_{PxP} C with C = diag(c). Singular values below ``rcond * max(S)`` are directions in which the
-residuals do not change: a parameter with a component above ``null_tol`` in them has unbounded variance, so it is
-listed in ``unidentifiable`` with a NaN standard error (and NaN covariance row) instead of a confident wrong number;
-the others' covariance is V_r S_r^-2 V_r^T over the remaining directions r.
-On noise-free data sigma^2 ~ 0, and so are the standard errors.
+Standard errors come from the Gauss-Newton Hessian at the solution: with J = dr/dp = U S V^T, m residuals (w > 0) and
+K unknowns, sigma^2 = RSS / (m - K), Cov(p) = sigma^2 V S^-2 V^T and Cov(theta) = C Cov(p)_{PxP} C, C = diag(c).
+Singular values below ``RCOND * max(S)`` are directions in which the residuals do not change: a parameter with a
+component above ``NULL_TOL`` in them is listed in ``unidentifiable`` with a NaN standard error (and covariance row)
+instead of a confident wrong number. On noise-free data sigma^2 ~ 0, and so are the standard errors.
 """
 
 from __future__ import annotations
@@ -49,12 +41,17 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ..integrators import AbstractIntegrator, Heun, rollout
+from ..integrators import rollout
+from ..learn.dataset import check_source
 from ..status import Status
+from .fit import METHODS
+from .losses import state_scale
 
 __all__ = ["LeastSquaresResult", "least_squares"]
 
-METHODS = ("single_shooting", "multiple_shooting")
+TOL = 1e-12  # Levenberg-Marquardt's rtol and atol (scaled parameters and residuals)
+RCOND, NULL_TOL = 1e-8, 1e-6  # J's singular values below RCOND * max are zero; a larger component there: unidentifiable
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,10 +59,8 @@ class LeastSquaresResult:
     """The outcome of :func:`least_squares` (host values, original units).
 
     Attributes:
-        theta: the learned parameters, {name: value}.
-        standard_errors: {name: standard error}; NaN for an unidentifiable parameter.
-        covariance: (P, P) in ``names`` order, in original units; NaN rows and columns for unidentifiable ones.
-        names: the parameter names in the order of ``covariance``.
+        theta, standard_errors: {name: value}; the standard error is NaN for an unidentifiable parameter.
+        covariance, names: (P, P) in ``names`` order; NaN rows and columns for unidentifiable parameters.
         residual_norm: ||r|| at the solution (scaled residuals, see the module docstring).
         n_obs, dof, sigma2: the residuals m that count (w > 0), m - K, and RSS / (m - K) (NaN when m <= K).
         converged, status, message: whether Levenberg-Marquardt met its tolerances (and, on noise-free data, fits
@@ -73,8 +68,8 @@ class LeastSquaresResult:
         steps: Levenberg-Marquardt steps taken (accepted or not).
         unidentifiable: the names the data cannot identify (``message`` gives the direction).
         singular_values: of J = dr/dp (scaled parameters, then the starts), descending.
-        seconds: wall time, compilation included.
         method, starts: the method, and the fitted starts (B, n) with ``fit_starts`` (else None).
+        seconds: wall time, compilation included.
     """
 
     theta: dict[str, float]
@@ -128,10 +123,9 @@ _RESULTS = ((optx.RESULTS.successful, Status.CONVERGED), (optx.RESULTS.max_steps
             (optx.RESULTS.nonfinite, Status.NOT_FINITE), (optx.RESULTS.nonfinite_input, Status.NOT_FINITE))
 
 
-@functools.partial(jax.jit, static_argnames=("model", "integrator", "names", "window", "fit_starts", "rtol", "atol",
-                                             "max_steps"))
+@functools.partial(jax.jit, static_argnames=("model", "integrator", "names", "window", "fit_starts", "max_steps"))
 def _solve(p0, c, state_scale, spec, times, x_obs, u_obs, weights, *, model, integrator, names, window, fit_starts,
-           rtol, atol, max_steps):
+           max_steps):
     """The whole fit as one program: LM from p0, then the residuals and their Jacobian at the solution."""
     n_par = len(names)
 
@@ -142,7 +136,7 @@ def _solve(p0, c, state_scale, spec, times, x_obs, u_obs, weights, *, model, int
         return ((pred - x_obs) * weights).ravel()
 
     jac = "fwd" if integrator.fixed_step else "bwd"  # an adaptive (diffrax) rollout has reverse-mode derivatives only
-    sol = optx.least_squares(residuals, optx.LevenbergMarquardt(rtol=rtol, atol=atol), p0, options={"jac": jac},
+    sol = optx.least_squares(residuals, optx.LevenbergMarquardt(rtol=TOL, atol=TOL), p0, options={"jac": jac},
                              max_steps=max_steps, throw=False)
     code = jnp.asarray(int(Status.NOT_CONVERGED))
     for results, status in _RESULTS:
@@ -153,11 +147,9 @@ def _solve(p0, c, state_scale, spec, times, x_obs, u_obs, weights, *, model, int
 
 
 def _state_scale(system, x_fit: np.ndarray, scale) -> np.ndarray:
-    n = x_fit.shape[-1]
     if isinstance(scale, str) and scale == "range":
-        s = system.arrays()["x_upper"] - system.arrays()["x_lower"]
-        s = np.where(np.isfinite(s) & (s > 0), s, np.max(np.abs(x_fit).reshape(-1, n), axis=0))
-        return np.where(s > 0, s, 1.0)
+        return state_scale(system, x_fit, "range")
+    n = x_fit.shape[-1]
     try:
         s = np.ones(n) if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64), (n,)).copy()
     except ValueError:  # another string, or the wrong length
@@ -168,17 +160,7 @@ def _state_scale(system, x_fit: np.ndarray, scale) -> np.ndarray:
 
 
 def _check(model, dataset, method, window, n_steps, fit_starts) -> None:
-    system = model.system
-    name, sha = getattr(dataset, "system", None), getattr(dataset, "spec_sha256", None)
-    if name is not None and name != system.name:
-        raise ValueError(f"least_squares: the dataset is of system {name!r} but the model is of {system.name!r}")
-    if sha is not None and sha != system.spec_sha256:
-        raise ValueError(f"least_squares: the dataset's spec (sha256 {sha}) is not the model's {system.name!r} "
-                         f"({system.spec_sha256}): regenerate the dataset for this spec")
-    xs, us = np.shape(dataset.train.states), np.shape(dataset.train.controls)
-    if len(xs) != 3 or len(us) != 3 or (xs[2], us[2]) != (system.n_states, system.n_controls):
-        raise ValueError(f"least_squares: {system.name} needs states (B, N+1, {system.n_states}) and controls (B, N+1, "
-                         f"{system.n_controls}), the dataset has {xs} and {us}")
+    check_source(dataset, model.system, "least_squares")
     if method not in METHODS:
         raise ValueError(f"least_squares: method must be one of {METHODS}, got {method!r}")
     if method == "multiple_shooting" and not (isinstance(window, int) and 1 <= window <= n_steps):
@@ -217,34 +199,33 @@ def _weights(system, x_obs: np.ndarray, s: np.ndarray, fit_starts: bool, drop_cl
     return weights
 
 
-def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: float, finite: bool, rcond: float,
-                null_tol: float) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], str]:
+def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: float,
+                finite: bool) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], str]:
     """``(covariance of the parameters, singular values of J, unidentifiable names, a note for the message)``: the
     Gauss-Newton covariance on J's range; NaN rows and columns for a parameter with a component in its null space."""
     n_par, n_all = len(names), jac.shape[1]
     sv, vt, keep = np.full(n_all, math.nan), np.zeros((n_all, n_all)), np.zeros(n_all, dtype=bool)
     if finite:
         _, sv, vt = np.linalg.svd(jac, full_matrices=False)
-        keep = sv > rcond * np.max(sv)
+        keep = sv > RCOND * np.max(sv)
     v_null = vt[~keep, :n_par].T if finite else np.zeros((n_par, 0))  # the parameters' part of the null directions
-    bad = np.linalg.norm(v_null, axis=1) > null_tol
+    bad = np.linalg.norm(v_null, axis=1) > NULL_TOL
     v = vt[keep, :n_par]
     cov = c[:, None] * ((v.T / sv[keep] ** 2) @ v * sigma2) * c[None, :]
     cov[bad | (not finite), :] = math.nan
     cov[:, bad | (not finite)] = math.nan
     unidentifiable, note = tuple(k for k, b in zip(names, bad) if b), ""
     if unidentifiable:
-        dirs = "; ".join(_direction(c * col, names, null_tol) for col in v_null.T if np.any(np.abs(col) > null_tol))
+        dirs = "; ".join(_direction(c * col, names, NULL_TOL) for col in v_null.T if np.any(np.abs(col) > NULL_TOL))
         note = (f"; the data cannot identify: {', '.join(unidentifiable)} (the residuals do not change along "
-                f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {rcond:g} x "
+                f"d theta ~ {dirs}: singular value(s) {', '.join(f'{x:.1e}' for x in sv[~keep])} < {RCOND:g} x "
                 f"{np.max(sv):.2e}); their standard errors are NaN")
     return cov, sv, unidentifiable, note
 
 
 def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "single_shooting",
-                  window: int | None = None, fit_starts: bool | None = None, use_validation: bool = False,
-                  drop_clipped: bool | None = None, rtol: float = 1e-12, atol: float = 1e-12, max_steps: int = 200,
-                  scale: Any = "range", rcond: float = 1e-8, null_tol: float = 1e-6) -> LeastSquaresResult:
+                  window: int | None = None, fit_starts: bool | None = None, drop_clipped: bool | None = None,
+                  max_steps: int = 200, scale: Any = "range") -> LeastSquaresResult:
     """Fit a parametric model's parameters to a dataset by Levenberg-Marquardt (see the module docstring).
 
     Args:
@@ -255,13 +236,9 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         window: steps per multiple-shooting window (default N // 10, at least 1).
         fit_starts: estimate each trajectory's start too (single shooting); None: when the data are noisy
             (``dataset.sampling.noise > 0``) and the method is single shooting.
-        use_validation: fit the training and the validation trajectories together.
         drop_clipped: leave out observations at a finite state bound; None: when the data are noisy.
-        rtol, atol: Levenberg-Marquardt's termination tolerances (scaled parameters and residuals).
-        max_steps: the step limit.
+        max_steps: Levenberg-Marquardt's step limit.
         scale: per-state residual scale: "range" (see the module docstring), None (1) or n positive numbers.
-        rcond: singular values of J below ``rcond * max`` count as zero (unidentifiable directions).
-        null_tol: a parameter with a larger component in those directions is reported unidentifiable.
 
     Raises:
         ValueError: a dataset of another system or spec, wrong shapes, a model with non-scalar parameters (a Neural
@@ -273,15 +250,12 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     names = tuple(theta_start)
     n_steps = int(np.shape(dataset.times)[0]) - 1
     window = max(1, n_steps // 10) if method == "multiple_shooting" and window is None else window
-    sampling = getattr(dataset, "sampling", None)
-    noisy = getattr(sampling, "noise", 0.0) > 0
+    noisy = dataset.sampling.noise > 0
     fit_starts = noisy and method == "single_shooting" if fit_starts is None else fit_starts
     drop_clipped = noisy if drop_clipped is None else drop_clipped
     _check(model, dataset, method, window, n_steps, fit_starts)
-    parts = [dataset.train] + ([dataset.validation] if use_validation else [])
-    x_obs = np.concatenate([np.asarray(t.states, dtype=np.float64) for t in parts])
-    u_obs = np.concatenate([np.asarray(t.controls, dtype=np.float64) for t in parts])
-    integrator: AbstractIntegrator = getattr(sampling, "integrator", None) or Heun()
+    x_obs, u_obs = (np.asarray(a, dtype=np.float64) for a in (dataset.train.states, dataset.train.controls))
+    integrator = dataset.sampling.integrator
     s = _state_scale(system, x_obs, scale)
     weights = _weights(system, x_obs, s, fit_starts, drop_clipped)
     g = np.array([theta_start[k] for k in names], dtype=np.float64)
@@ -293,7 +267,7 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         jnp.asarray(p0), jnp.asarray(c), jnp.asarray(s), system.default_params(jnp.float64),
         jnp.asarray(dataset.times, dtype=jnp.float64), jnp.asarray(x_obs), jnp.asarray(u_obs), jnp.asarray(weights),
         model=model, integrator=integrator, names=names, window=window if method == "multiple_shooting" else None,
-        fit_starts=fit_starts, rtol=rtol, atol=atol, max_steps=max_steps))
+        fit_starts=fit_starts, max_steps=max_steps))
     status, message = Status(int(code)), ""
     finite = bool(np.all(np.isfinite(r)) and np.all(np.isfinite(p)) and np.all(np.isfinite(jac)))
     if not finite:
@@ -306,7 +280,7 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     n_obs, n_par = int(np.count_nonzero(weights)), len(names)
     dof, rss = n_obs - p.size, float(r @ r)
     sigma2 = rss / dof if dof > 0 else math.nan
-    cov, sv, unidentifiable, note = _covariance(jac, c, names, sigma2, finite, rcond, null_tol)
+    cov, sv, unidentifiable, note = _covariance(jac, c, names, sigma2, finite)
     message += note
     if finite and not noisy and status is Status.CONVERGED and rss > 1e-12 * n_obs:  # exact data, no fit
         status, message = Status.NOT_CONVERGED, message + (

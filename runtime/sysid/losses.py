@@ -31,47 +31,33 @@ T ~ 1000 and I ~ 0.04, then weigh alike; the same definition as :mod:`.least_squ
 spread max - min of x_i over the training data, else the range: a state that the data move over a small part of its
 bounds, such as Glucose's hormone H in [0, 0.002] of [0, 1], is fitted as closely as the others).
 
-:func:`trajectory_loss` evaluates the loss for one batch (tests, diagnostics); :func:`validation_loss` and
-:func:`train_epoch` are the two compiled functions :func:`~.fit.fit` runs, jit-cached on their static configuration
-(model, integrator, optimiser, layout, shapes), so a second fit of the same configuration compiles nothing.
+:func:`validation_loss` and :func:`train_epoch` are the two compiled functions :func:`~.fit.fit` runs, jit-cached
+on their static configuration (model, integrator, optimiser, layout, shapes): a second fit compiles nothing.
 """
 
 from __future__ import annotations
 
 import functools
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ..integrators import INTEGRATORS, RK4, AbstractIntegrator, rollout
+from ..integrators import RK4, AbstractIntegrator, rollout
 
 __all__ = ["SCALES", "TRACES", "WindowLayout", "fit_integrator", "layout", "state_scale", "train_epoch",
-           "trajectory_loss", "validation_loss", "window_losses"]
+           "validation_loss", "window_losses"]
 
 SCALES = ("none", "range", "data")
 
 
 def fit_integrator(sampling: Any) -> AbstractIntegrator:
-    """The integrator a fit rolls the model out with: the one that generated the data.
-
-    The one exception: data from the ``Adaptive`` integrator (several adaptive sub-steps per interval, reverse-mode
-    gradients only, and a step-size controller that makes the loss only piecewise smooth in theta) is fitted with
-    ``RK4`` on the same grid: one fixed step per interval, differentiable, and order 4, so its discretisation error
-    is small next to any modelling error on a usual grid. ``None`` (no sampling recorded) means Heun, the published
-    integrator.
-    """
-    integ = getattr(sampling, "integrator", sampling)
-    if integ is None:
-        return INTEGRATORS["heun"]()
-    if isinstance(integ, str):
-        if integ not in INTEGRATORS:
-            raise ValueError(f"unknown integrator {integ!r}; expected one of {sorted(INTEGRATORS)}")
-        integ = INTEGRATORS[integ]()
-    if not isinstance(integ, AbstractIntegrator):
-        raise TypeError(f"the dataset's sampling.integrator must be an integrator object, got {integ!r}")
+    """The integrator a fit rolls the model out with: the one that generated the data, except ``Adaptive`` (reverse-mode
+    gradients only, and a loss only piecewise smooth in theta through its step-size controller), replaced by ``RK4``
+    on the same grid: one differentiable step per interval, whose error is small next to any modelling error."""
+    integ = sampling.integrator
     return integ if integ.fixed_step else RK4()
 
 
@@ -96,21 +82,20 @@ def state_scale(system: Any, states: Any, scale: str) -> np.ndarray:
     return s
 
 
-class WindowLayout:
+class WindowLayout(NamedTuple):
     """Where the windows of a loss start and how each predicted node is weighted (host arrays, fixed shapes).
 
     Attributes:
-        window: W, the steps per window.
         starts: (J,) int, the windows' first nodes.
+        window: W, the steps per window.
         weights: (J, W) float, c_{s,l} gamma^l for l = 1..W.
         count: K, the number of distinct predicted nodes (the loss divides by K n).
     """
 
-    def __init__(self, starts: np.ndarray, window: int, weights: np.ndarray, count: int):
-        self.starts, self.window, self.weights, self.count = starts, window, weights, count
-
-    def __repr__(self) -> str:
-        return f"WindowLayout(window={self.window}, starts={self.starts.tolist()}, count={self.count})"
+    starts: np.ndarray
+    window: int
+    weights: np.ndarray
+    count: int
 
 
 def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma: float = 1.0) -> WindowLayout:
@@ -163,38 +148,6 @@ def window_losses(model: Any, integrator: AbstractIntegrator, lay: WindowLayout,
     per_node = jnp.sum(err * err, axis=-1)  # (B, J, W)
     n = states.shape[-1]
     return jnp.sum(per_node * jnp.asarray(lay.weights, dtype=states.dtype), axis=(1, 2)) / (lay.count * n)
-
-
-def trajectory_loss(model: Any, theta: Any, times: Any, controls: Any, states: Any, *,
-                    integrator: AbstractIntegrator | None = None, window: int | None = None, tile: bool = True,
-                    gamma: float = 1.0, scale: str = "none", spec_params: Any = None, mask: Any = None) -> jax.Array:
-    """The loss of the module docstring for one batch: a scalar, differentiable in ``theta``.
-
-    Args:
-        model: an ``AbstractModel`` (``vector_field(x, u, t, theta, spec_params)``; ``system`` for the scale).
-        theta: the model's parameters.
-        times: the grid (N+1,), uniform.
-        controls, states: observations, (B, N+1, m) and (B, N+1, n) (a ``Trajectories``' fields).
-        integrator: the one-step method (default Heun, the published one; see :func:`fit_integrator`).
-        window, tile, gamma: the layout (:func:`layout`); the defaults give single shooting.
-        scale: ``"none"`` (published) or ``"range"`` (computed from ``states`` and the bounds).
-        spec_params: the spec's parameter dict (default ``model.system.default_params()``).
-        mask: (B,) weights in {0, 1} (default all ones).
-    """
-    times = np.asarray(times, dtype=np.float64)
-    n_steps = times.shape[0] - 1
-    integrator = fit_integrator(integrator)
-    lay = layout(n_steps, window, tile=tile, gamma=gamma)
-    inv = 1.0 / state_scale(model.system, states, scale)
-    states, controls = jnp.asarray(states), jnp.asarray(controls)
-    inv = jnp.asarray(inv, dtype=states.dtype)
-    spec_params = model.system.default_params(states.dtype) if spec_params is None else spec_params
-    h = (times[-1] - times[0]) / n_steps
-    per = window_losses(model, integrator, lay, theta, spec_params, times[0], h, controls, states, inv)
-    if mask is None:
-        return jnp.mean(per)
-    mask = jnp.asarray(mask, dtype=per.dtype)
-    return jnp.sum(per * mask) / jnp.sum(mask)
 
 
 # Incremented while tracing the two compiled functions below (Python runs only when JAX traces): how many times they

@@ -17,6 +17,13 @@ from ..plotting import pyplot, save_png
 __all__ = ["plot_trajectories", "plot_vector_field"]
 
 
+def _save(fig, title: str, path: str | os.PathLike) -> str:
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    save_png(fig, path)
+    return os.fspath(path)
+
+
 def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: str | os.PathLike, title: str,
                       max_trajectories: int = 3) -> str:
     """Observed (true system) against predicted (learned model, rolled out from the same start with the same
@@ -43,21 +50,14 @@ def plot_trajectories(system, times: Any, observed: Any, predicted: Any, path: s
         axes[i // cols][i % cols].axis("off")
     for ax in axes[-1]:
         ax.set_xlabel("t", fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    save_png(fig, path)
-    return os.fspath(path)
+    return _save(fig, title, path)
 
 
 def plot_vector_field(system, learned, times: Any, states: Any, controls: Any, path: str | os.PathLike,
                       title: str, grid: int = 15) -> str:
-    """For a two-state system: the true and the learned vector fields, each under the control of the nearest point
-    in time of the given (optimal) trajectory, drawn over the trajectory's neighbourhood (the published figure).
-
-    Args:
-        system: the true system; ``learned``: the learned one (a ``LearnedSystem``).
-        times, states, controls: the trajectory ((K,), (K, 2), (K, m)) whose controls the fields are drawn under.
-    """
+    """For a two-state system: the true and the ``learned`` vector fields over the neighbourhood of a trajectory
+    (``times`` (K,), ``states`` (K, 2), ``controls`` (K, m); the optimal one), each point under the control of the
+    trajectory's point nearest to it (the published figure)."""
     if system.n_states != 2:
         raise ValueError(f"{system.name}: a vector-field plot needs two states, it has {system.n_states}")
     plt = pyplot()
@@ -86,7 +86,4 @@ def plot_vector_field(system, learned, times: Any, states: Any, controls: Any, p
         ax.grid(alpha=0.3)
     axes[0].set_ylabel(system.state_names[1])
     axes[0].legend(frameon=False, fontsize=7)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    save_png(fig, path)
-    return os.fspath(path)
+    return _save(fig, title, path)

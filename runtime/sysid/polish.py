@@ -1,20 +1,14 @@
 """Polish a fitted model with full-batch L-BFGS, optionally anchored on the true rollouts of earlier plans.
 
-Adam on minibatches (:mod:`.fit`) stalls at a validation loss around 1e-5 on a Neural ODE; the plan then exploits
-what error is left, and an open-loop plan misses a required final state by 0.1-1 on the true system. Two changes
-fix it (measured in docs/notes/node-training.md, "L-BFGS polish and plan anchors"):
-
-* full-batch L-BFGS (``optax.lbfgs`` with its zoom line search) from the Adam solution takes the training loss one
-  to two orders of magnitude lower in a few hundred iterations;
-* *anchors*: the true system's trajectories under the controls planned in earlier rounds (from the true start,
-  observed like any other data) enter the objective as full-horizon single-shooting losses with weight
-  ``anchor_weight``. The next plan stays close to the last one, so a model exact along it plans with a small defect:
-  round by round this behaves like iterative learning control, with the model's sensitivities as the Jacobian.
+Why and how much (docs/notes/node-training.md, "L-BFGS polish and plan anchors"): full-batch L-BFGS
+(``optax.lbfgs``, zoom line search) takes an Adam fit's training loss one to two orders of magnitude lower, and the
+*anchors*, the true system's trajectories under the earlier rounds' plans, keep the next plan close to the last one,
+so that round by round the plans converge as in iterative learning control.
 
 The objective is ``loss(train, window) + anchor_weight * loss(anchors, full horizon)`` with the losses of
-:mod:`.losses` (range-scaled by default); the whole run is one ``jax.jit``-compiled ``lax.while_loop``, cached on its
-static configuration, so later rounds of the same shapes compile nothing. The polished parameters are returned only
-when the objective and the parameters are finite; otherwise the starting ones, with ``status=Stop.NON_FINITE``.
+:mod:`.losses`; the whole run is one compiled ``lax.while_loop``, cached on its static configuration. The polished
+parameters are returned only when the objective and the parameters are finite; otherwise the starting ones, with
+``status=Stop.NON_FINITE``.
 """
 
 from __future__ import annotations
@@ -142,15 +136,8 @@ def _run(train, frozen, spec, inv, t0, h, x, u, xa, ua, xv, uv, weight, gtol, *,
 
 def polish(model: Any, dataset: Any, theta: Any, config: PolishConfig = PolishConfig(), *,
            anchors: Any = None) -> PolishResult:
-    """Polish ``theta`` on ``dataset.train`` (and ``anchors``) by L-BFGS; see the module docstring.
-
-    Args:
-        model: the sysid model (``partition``/``combine`` pick the trainable part).
-        dataset: a :class:`~.dataset.Dataset` (its grid, sampling integrator and splits).
-        theta: the starting parameters (usually an Adam fit).
-        config: a :class:`PolishConfig`.
-        anchors: a :class:`~.dataset.Trajectories` of whole trajectories on the dataset's grid (or None).
-    """
+    """Polish ``theta`` (usually an Adam fit of ``model``) on ``dataset.train`` and ``anchors`` (whole trajectories on
+    the dataset's grid, a :class:`~myriad.runtime.learn.dataset.Trajectories`, or None) by L-BFGS."""
     if not isinstance(config, PolishConfig):
         raise TypeError(f"polish: config must be a PolishConfig, got {type(config).__name__}")
     model.check_params(theta)

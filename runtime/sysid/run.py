@@ -55,12 +55,10 @@ class SysidConfig:
         fit: the optimiser settings for ``method="adam"``; None: :func:`node_fit_config` for a Neural ODE (the recipe
             in docs/notes/node-training.md), ``FitConfig()`` for a parametric model.
         refit: the optimiser settings of rounds after the first, which start from the last round's parameters
-            (None: ``fit`` again). On Pendulum a 500-epoch refit planned 9 % above the optimum where ``fit`` again
-            planned within 0.1 % (docs/notes/node-training.md), hence the default None.
+            (None: ``fit`` again, measured better in docs/notes/node-training.md).
         sampling: how trajectories are drawn (its ``noise`` is replaced by ``noise`` above).
-        polish: an L-BFGS polish after every round's Adam fit, with the true trajectories of the earlier rounds'
-            plans as anchors (:mod:`.polish`); ``"default"``:
-            ``PolishConfig()`` for a Neural ODE, None (no polish) for a parametric model.
+        polish: an L-BFGS polish after every round's Adam fit, anchored on the true trajectories of the earlier
+            rounds' plans (:mod:`.polish`); ``"default"``: ``PolishConfig()`` for a Neural ODE, None otherwise.
         reaim: after the last round, re-aim the plan at the required final values this many times from observed
             runs of the true system (:mod:`.reaim`); None: 6 for a Neural ODE, 0 for a parametric model (its plan
             is the true model's once the parameters are recovered).
@@ -172,12 +170,9 @@ class SysidReport:
 
 
 def node_fit_config(epochs: int = 1000) -> FitConfig:
-    """The Neural ODE training recipe: multiple-shooting windows of 10 steps on states scaled by their spread in the
-    data (Glucose's hormone moves over 0.2 % of its range: range-scaled, its errors were invisible), Adam with a
-    warm-up to 1e-2 and a cosine decay over ``epochs``, gradients clipped to norm 1.
-
-    Measured against the published setting (single shooting on the whole horizon, sigmoid, Adam 1e-3), which learns
-    a nearly constant field on Van der Pol: docs/notes/node-training.md."""
+    """The Neural ODE training recipe (measured in docs/notes/node-training.md): multiple-shooting windows of 10 steps
+    on states scaled by their spread in the data, Adam with a warm-up to 1e-2 and a cosine decay over ``epochs``,
+    gradients clipped to norm 1."""
     import optax
 
     schedule = optax.warmup_cosine_decay_schedule(0.0, 1e-2, warmup_steps=min(50, max(1, epochs // 20)),

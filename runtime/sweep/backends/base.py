@@ -14,11 +14,7 @@ class BackendUnavailable(RuntimeError):
 
 
 class AbstractBackend(abc.ABC):
-    """Where the tasks of a sweep run.
-
-    Class attributes:
-        name: the registry name (``--backend NAME``).
-    """
+    """Where the tasks of a sweep run; ``name`` is its registry name (``--backend NAME``)."""
 
     name: ClassVar[str]
 

@@ -36,10 +36,10 @@ class AbstractKind(abc.ABC):
 
     Class attributes:
         name: the registry name (the ``KIND`` of ``--method KIND:...``).
-        Settings: the kind's config, a frozen dataclass with a default for every field; its ``__post_init__`` raises
-            ``ValueError`` for a bad value, without loading any system, so that a sweep is checked before any work.
-            A field ``seed`` is the task's seed, not a setting.
-        columns: the record fields the printed (Markdown) table shows for this kind; the JSON and CSV have them all.
+        Settings: the kind's config, a frozen dataclass with a default for every field whose ``__post_init__``
+            raises ``ValueError`` without loading any system (a sweep is checked before any work); a field ``seed``
+            is the task's.
+        columns: the record fields the printed table shows for this kind (the JSON and CSV have them all).
     """
 
     name: ClassVar[str]
@@ -47,11 +47,8 @@ class AbstractKind(abc.ABC):
     columns: ClassVar[tuple[str, ...]]
 
     def check(self, settings: Mapping[str, Any]) -> dict[str, Any]:
-        """The settings completed with the defaults, as JSON-native values (lists, not tuples).
-
-        Raises:
-            ValueError: an unknown name (the known ones are listed) or a bad value.
-        """
+        """The settings completed with the defaults, as JSON-native values; ``ValueError`` for an unknown name (the
+        known ones listed) or a bad value."""
         known = [f.name for f in dataclasses.fields(self.Settings) if f.name != "seed"]
         unknown = sorted(set(settings) - set(known))
         if unknown:
@@ -62,11 +59,8 @@ class AbstractKind(abc.ABC):
         return to_json({**{k: v for k, v in defaults(self.Settings).items() if k != "seed"}, **settings})
 
     def config(self, settings: Mapping[str, Any], seed: int) -> Any:
-        """The config of these settings, with the task's ``seed`` where the config has one.
-
-        Raises:
-            ValueError: a bad value, prefixed with the kind's name.
-        """
+        """The config of these settings, with the task's ``seed`` where the config has one (``ValueError``: a bad
+        value, prefixed with the kind's name)."""
         given = dict(settings)
         if any(f.name == "seed" for f in dataclasses.fields(self.Settings)):
             given["seed"] = seed

@@ -22,7 +22,7 @@ from myriad.runtime.learn.loop import Stop
 from myriad.runtime.learn.models import NeuralODE, Parametric
 from myriad.runtime.sysid import losses
 from myriad.runtime.sysid.fit import FitConfig, fit
-from myriad.runtime.sysid.losses import fit_integrator, layout, state_scale, trajectory_loss
+from myriad.runtime.sysid.losses import fit_integrator, layout, state_scale, window_losses
 
 # The module, not the function (a package that re-exports ``fit`` would shadow it in a ``from`` import).
 fit_module = importlib.import_module("myriad.runtime.sysid.fit")
@@ -41,9 +41,14 @@ def data(system):
     return make_dataset(system, Sampling(intervals=N), trajectories=(12, 4, 0), seed=0)
 
 
-def loss_of(model, theta, data, **kw):
-    return trajectory_loss(model, theta, data.times, data.train.controls, data.train.states,
-                           integrator=data.sampling.integrator, **kw)
+def loss_of(model, theta, data, *, window=None, tile=True, gamma=1.0, scale="none"):
+    """The loss of runtime/sysid/losses.py on the training set, as ``fit`` composes it."""
+    lay = layout(data.intervals, window, tile=tile, gamma=gamma)
+    inv = jnp.asarray(1.0 / state_scale(model.system, data.train.states, scale))
+    per = window_losses(model, fit_integrator(data.sampling), lay, theta, model.system.default_params(jnp.float64),
+                        data.times[0], data.horizon / data.intervals, jnp.asarray(data.train.controls),
+                        jnp.asarray(data.train.states), inv)
+    return jnp.mean(per)
 
 
 def leaves_equal(a, b):
