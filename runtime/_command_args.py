@@ -20,13 +20,17 @@ def add_training_outputs(parser, plots_help: str) -> None:
 
 
 def first_error(args, files=("json",)) -> str | None:
-    """The first usage error of the shared options: ``--resume`` without ``--checkpoint``, an output file whose
-    folder does not exist (``files`` names the attributes holding output paths)."""
+    """The first usage error of the shared options: ``--resume`` without ``--checkpoint``, an output folder that
+    cannot be made, an output file whose folder does not exist (``files`` names the attributes holding their paths)."""
     if getattr(args, "resume", False) and not getattr(args, "checkpoint", None):
         return "--resume needs --checkpoint DIR"
-    for path in (getattr(args, name, None) for name in files):
+    for name in ("plots", "checkpoint"):
+        if error := output_folder_error(getattr(args, name, None), f"--{name}"):
+            return error
+    for name in files:
+        path = getattr(args, name, None)
         if path and not Path(path).resolve().parent.is_dir():
-            return f"the folder of {path} does not exist"
+            return f"--{name} {path}: the folder of {path} does not exist; create it first"
     return None
 
 

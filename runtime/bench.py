@@ -15,7 +15,7 @@ import multiprocessing
 import os
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor
 from typing import Callable
 
 import numpy as np
@@ -196,9 +196,7 @@ def _parallel(names, jobs, alternatives, solver, plots_dir, progress) -> list[Be
     come back pickled (a :class:`Solution` is NumPy and plain values) and are reported as they finish.
 
     This process works too rather than wait: it has imported JAX and the package already (~2.3 s of CPU that a
-    further worker would spend again). Measured on the 2-core AMD EPYC, empty cache, ``myriad bench
-    --published-only``: one process used ~1.3 cores (85 s of CPU in 65 s wall); the work is per system and
-    independent, so two processes fill both cores.
+    further worker would spend again). A thread per worker hands it one system at a time and waits.
     """
     import jax
 
@@ -209,50 +207,36 @@ def _parallel(names, jobs, alternatives, solver, plots_dir, progress) -> list[Be
     rows: dict[str, BenchRow] = {}
     errors: list[BaseException] = []
 
-    def take() -> str | None:
-        with lock:
-            return queue.popleft() if queue and not errors else None
-
-    def report(row: BenchRow) -> None:
-        with lock:
-            rows[row.system] = row
-            if progress:
-                for line in [*row.failures, _line(row)]:
-                    progress(line)
+    def work(bench: Callable[..., BenchRow]) -> None:
+        """Solve the next system until none is left or a solve raised (one that raised ends the bench)."""
+        try:
+            while True:
+                with lock:
+                    if not queue or errors:
+                        return
+                    name = queue.popleft()
+                row = bench(name, alternatives, solver, plots_dir)
+                with lock:
+                    rows[name] = row
+                    for line in [*row.failures, _line(row)] if progress else ():
+                        progress(line)
+        except BaseException as exc:  # noqa: BLE001 (re-raised in the main thread, an interrupt included)
+            with lock:
+                errors.append(exc)
 
     pool = ProcessPoolExecutor(
         max_workers=jobs - 1, mp_context=multiprocessing.get_context("spawn"), initializer=_worker_setup,
         initargs=(jax.config.jax_compilation_cache_dir or None, bool(jax.config.jax_enable_x64),
                   programs.compiler_options()))
-
-    def feed() -> None:
-        """Keeps every worker on one system at a time (a thread: it only waits)."""
-        in_flight = {}
-        try:
-            for _ in range(jobs - 1):
-                if (name := take()) is not None:
-                    in_flight[pool.submit(bench_system, name, alternatives, solver, plots_dir)] = name
-            while in_flight:
-                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                for future in done:
-                    del in_flight[future]
-                    report(future.result())  # a published-setting solve that raised ends the bench
-                    if (name := take()) is not None:
-                        in_flight[pool.submit(bench_system, name, alternatives, solver, plots_dir)] = name
-        except BaseException as exc:  # noqa: BLE001 (re-raised in the main thread)
-            errors.append(exc)
-
-    feeder = threading.Thread(target=feed, name="bench-workers", daemon=True)
-    feeder.start()
+    threads = [threading.Thread(target=work, args=(lambda *a: pool.submit(bench_system, *a).result(),),
+                                name="bench-worker", daemon=True) for _ in range(jobs - 1)]
+    for thread in threads:
+        thread.start()
     try:
-        while (name := take()) is not None:
-            report(bench_system(name, alternatives, solver, plots_dir))
-    except BaseException:
-        with lock:  # an interrupted bench drops the systems not yet started instead of waiting for them
-            queue.clear()
-        raise
+        work(bench_system)
     finally:
-        feeder.join()
+        for thread in threads:
+            thread.join()
         pool.shutdown(wait=True, cancel_futures=True)
     if errors:
         raise errors[0]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import importlib
 import json
 import os
 import sys
@@ -59,6 +60,8 @@ _SOLVE_METAVARS = {"intervals": "N", "tolerance": "TOL", "max_refinements": "K",
 # Commands that build only their own parser: the others' parsers live in their packages, whose imports (equinox,
 # optax, optimistix, gymnasium) cost ~0.7 s; `myriad --help` and the other commands build them all.
 _OWN_PARSER_ONLY = ("solve", "bench")
+# The other commands: their parser (add_parser) and run() live in a package's cli.py.
+_PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl"}
 
 
 def _parser(command: str | None = None):
@@ -80,15 +83,10 @@ def _parser(command: str | None = None):
     s.add_argument("--plot", metavar="FILE.png", help="plot states and controls")
     s.add_argument("--error-tolerance", type=float, default=None, metavar="TOL",
                    help="warn (on stderr) when the error estimate, the relative local error of the dynamics on the "
-                        "method's grid, exceeds TOL (default: --tolerance when refining, else 1e-6)")
+                        "method's grid, exceeds TOL (default: warn only when the re-simulation disagrees)")
     if command not in _OWN_PARSER_ONLY:
-        from .e2e.cli import add_parser as add_e2e
-        from .rl.cli import add_parser as add_rl_reference
-        from .sweep.cli import add_parser as add_sweep
-        from .sysid.cli import add_parser as add_sysid
-
-        for add in (add_sysid, add_sweep, add_e2e, add_rl_reference):
-            add(sub)
+        for package in _PACKAGE_COMMANDS.values():
+            importlib.import_module(f".{package}.cli", __package__).add_parser(sub)
     b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
     b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
     b.add_argument("--json", metavar="FILE")
@@ -136,11 +134,6 @@ def _solve_config(args):
     return from_args(SolveConfig, args)
 
 
-def _transcription(args):
-    """The method object of the arguments."""
-    return _solve_config(args).build()[0]
-
-
 def _usage(message):
     print(f"myriad: error: {message}", file=sys.stderr)
     return 2
@@ -166,7 +159,7 @@ def _cmd_solve(args) -> int:
         plot_format_error(args.plot, "--plot"))
     if error:
         return _usage(error)
-    warn_above = args.error_tolerance or config.tolerance or 1e-6
+    warn_above = args.error_tolerance
     system = load(args.system)
     if not config.build()[0].uses_solver:  # an indirect method: refused before any work (direct ones enforce them)
         from .system import UnsupportedFeature
@@ -185,7 +178,8 @@ def _cmd_solve(args) -> int:
           f"constraint violation {sol.constraint_violation:.2e}")
     if config.resimulate:
         print(f"  re-simulated (adaptive): cost {sol.simulated_cost:.8g}, defect "
-              f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}")
+              f"{[f'{d:.2e}' for d in sol.simulated_defect] or '-'}; agreement gap {sol.agreement_gap:.1e} "
+              f"(tolerance {sol.agreement_tolerance:.3g})")
     if system.free_horizon:
         lo, hi = system.horizon_bounds
         print(f"  final time T = {sol.final_time:.10g} (free in [{lo:g}, {hi:g}], guess {system.horizon_guess:g})")
@@ -194,6 +188,8 @@ def _cmd_solve(args) -> int:
               f"{sol.path_violation:.2e}")
     _report_error_estimate(sol, warn_above)
     _report_refinement(sol)
+    if sol.accuracy_warning and sol.refinement is None:  # refinement that stopped short has said why
+        print(f"myriad: warning: {sol.accuracy_warning}", file=sys.stderr)
     print(f"  compile {sol.compile_seconds:.2f} s, solve {sol.solve_seconds:.2f} s (last grid)")
     if args.json:
         rec = sol.record()
@@ -232,7 +228,7 @@ def _report_error_estimate(sol, tolerance):
         return
     print(f"  error estimate {sol.error_estimate:.2e} (relative local error of the dynamics, max over "
           f"{sol.interval_errors.size} intervals)")
-    if sol.error_estimate > tolerance:
+    if tolerance is not None and sol.error_estimate > tolerance:
         worst = int(np.argmax(sol.interval_errors))
         over = int(np.sum(sol.interval_errors > tolerance))
         # Hermite-Simpson's grid interleaves midpoints: its intervals span two points of sol.times.
@@ -243,32 +239,9 @@ def _report_error_estimate(sol, tolerance):
               f"mesh", file=sys.stderr)
 
 
-def _cmd_sysid(args) -> int:
+def _cmd_package(args) -> int:
     _configure_jax(args)
-    from .sysid.cli import run
-
-    return run(args)
-
-
-def _cmd_e2e(args) -> int:
-    _configure_jax(args)
-    from .e2e.cli import run
-
-    return run(args)
-
-
-def _cmd_rl_reference(args) -> int:
-    _configure_jax(args)
-    from .rl.cli import run
-
-    return run(args)
-
-
-def _cmd_sweep(args) -> int:
-    _configure_jax(args)
-    from .sweep.cli import run
-
-    return run(args)
+    return importlib.import_module(f".{_PACKAGE_COMMANDS[args.command]}.cli", __package__).run(args)
 
 
 def _cmd_bench(args) -> int:
@@ -279,7 +252,7 @@ def _cmd_bench(args) -> int:
     names = args.systems or list(NAMES)
     unknown = [n for n in names if n not in NAMES]
     if unknown:
-        return _usage(f"unknown systems {unknown}; shipped: {', '.join(NAMES)}")
+        return _usage(f"--systems: unknown systems {unknown}; shipped: {', '.join(NAMES)}")
     error = _first_error(output_file_error(args.json, "--json"), output_file_error(args.markdown, "--markdown"),
                          output_folder_error(args.plots, "--plots"))
     if error:
@@ -327,9 +300,10 @@ def main(argv=None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
+    if error := output_folder_error(getattr(args, "cache_dir", None), "--cache-dir"):  # every command has one
+        return _usage(error)
     try:
-        return {"solve": _cmd_solve, "bench": _cmd_bench, "sysid": _cmd_sysid, "sweep": _cmd_sweep,
-                "e2e": _cmd_e2e, "rl-reference": _cmd_rl_reference}[args.command](args)
+        return {"solve": _cmd_solve, "bench": _cmd_bench}.get(args.command, _cmd_package)(args)
     except KeyError as exc:
         print(f"myriad: error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2

@@ -148,12 +148,15 @@ def from_args(cls: type, args: argparse.Namespace, **given: Any) -> Any:
     Raises:
         ValueError: a malformed ``--set``, an unknown field, or a value the config refuses.
     """
-    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if hasattr(args, f.name)}
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    values = {name: getattr(args, name) for name in names if hasattr(args, name)}
     for item in getattr(args, "set_", None) or ():
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
+        key, sep, text = (part.strip() for part in item.partition("="))
+        if not sep or not key:
             raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        values[key.strip()] = parse_value(text.strip())
+        if key.partition(".")[0] not in names:
+            raise ValueError(f"--set {item}: unknown field {key!r} of {cls.__name__}; known: {', '.join(names)}")
+        values[key] = parse_value(text)
     return build(cls, {**values, **given})
 
 
@@ -185,10 +188,26 @@ def build(cls: type, values: Mapping[str, Any], base: Any = None) -> Any:
                 message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w-])", f"{head}.{name}", message)
             raise FieldError(message, *(f"{head}.{name}" for name in exc.fields)) from None
     kwargs = {k: _read(hints[k], v) for k, v in flat.items()}
+    for k, v in kwargs.items():
+        _check_kind(k, hints[k], v)
     try:
         return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
     except TypeError as exc:  # e.g. a comparison of a word with a number inside the config's own checks
         raise ValueError(f"{cls.__name__}: {exc}") from None
+
+
+def _check_kind(name: str, hint: Any, value: Any) -> None:
+    """A field annotated with config classes alone takes one of them (or None where allowed): a stray word or broken
+    JSON is refused here, naming the field, rather than failing later inside the work."""
+    bare, optional = _options(hint)
+    declared = typing.get_args(bare) if typing.get_origin(bare) in (typing.Union, types.UnionType) else (bare,)
+    if (value is None and optional) or not all(isinstance(c, type) and c.__module__ not in ("builtins", "typing")
+                                               for c in declared) \
+            or isinstance(value, declared):
+        return
+    words = [w for k in _dataclasses_of(hint) if (w := _word(k))]
+    raise FieldError(f"{name} expects a JSON object of its fields{' or one of ' + ', '.join(words) if words else ''}, "
+                     f"got {value!r}", name)
 
 
 def _default(cls: type, name: str) -> Any:
@@ -288,8 +307,8 @@ def usage_message(exc: Exception, cls: type, spelled: Mapping[str, tuple[str, ..
         if call and call[1] in names:
             message = f"{call[1]} {call[2]}: {call[3]}"
         message = re.sub(rf"^{cls.__name__}: ", "", message)
-        first = re.match(r"[a-z][a-z0-9_]*(?= )", message)
-        fields = (first[0],) if first and first[0] in names else ()
+        lead = re.match(r"[a-z][a-z0-9_]*(?:(?:, | and )[a-z][a-z0-9_]*)*(?=[ :])", message)  # "a and b must ..."
+        fields = tuple(n for n in re.split(", | and ", lead[0]) if n in names) if lead else ()
     for name in fields:
         message = re.sub(rf"(?<![\w.-]){re.escape(name)}(?![\w-])", lambda _: flag(name, spelled), message)
     return message

@@ -74,14 +74,10 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
     # Host (NumPy) leaves where nothing is traced: a compiled program takes them as they are, while making device
     # arrays of them one at a time (jnp.asarray, jax.device_put) cost ~70 us a leaf, a tenth of a small warm solve.
     p = _default_params(system, dtype)
-    if params is not None:
-        _check_names(system, params, p)
-        new = {k: _leaves(v, dtype) for k, v in params.items()}
-        _check_shapes(system, new, p, batch=())
-        check_structural_params(system, params)
-        p.update(new)
+    new = {k: _leaves(v, dtype) if k in p else v for k, v in (params or {}).items()}  # unknown names: KeyError
     x0 = _leaf(system.x0 if x0 is None else x0, dtype)
-    _check_x0(system, x0, batch=())
+    _check(system, new, p, x0, batch=())
+    p.update(new)
     return ProblemData(params=p, x0=x0)
 
 
@@ -107,11 +103,7 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     (batch,) = sizes
     dtype = _dtype()
     base = default_data(system)
-    _check_names(system, params, base.params)
-    _check_shapes(system, params, base.params, batch=(batch,))
-    if x0 is not None:
-        _check_x0(system, x0, batch=(batch,))
-    check_structural_params(system, params)
+    _check(system, params, base.params, x0, batch=(batch,))
     p = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), base.params)
     p.update({k: _leaves(v, dtype) for k, v in params.items()})
     xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, dtype)
@@ -141,7 +133,9 @@ def _leaf(value: Any, dtype) -> Any:
     return np.asarray(value, dtype=dtype)
 
 
-def _check_names(system: System, given: dict, known: dict) -> None:
+def _check(system: System, given: dict, known: dict, x0: Any, batch: tuple) -> None:
+    """Parameter names (``KeyError``), then their shapes (after a leading batch axis in a batch), their structural
+    values and the shape of ``x0`` unless None (``ValueError``)."""
     unknown = sorted(set(given) - set(known))
     if unknown:
         # cutoff 0.5: parameter names are short (m1, m2), where one wrong character is already half the name
@@ -149,19 +143,6 @@ def _check_names(system: System, given: dict, known: dict) -> None:
         hints = [f"{k!r} (did you mean {close[k][0]!r}?)" if close[k] else repr(k) for k in unknown]
         raise KeyError(f"{system.name}: unknown parameter{'s' if len(unknown) > 1 else ''} {', '.join(hints)}; "
                        f"its parameters are {', '.join(known) or 'none'}")
-
-
-def _check_x0(system: System, x0: Any, batch: tuple) -> None:
-    expected = (*batch, system.n_states)
-    if tuple(np.shape(x0)) != expected:
-        names = ", ".join(system.state_names)
-        got = f"{np.size(x0)} value{'s' if np.size(x0) != 1 else ''}" if np.ndim(x0) <= 1 else f"shape {np.shape(x0)}"
-        raise ValueError(f"x0 has {got}, expected shape {expected}: {system.name} has {system.n_states} "
-                         f"state{'s' if system.n_states != 1 else ''} ({names})")
-
-
-def _check_shapes(system: System, given: dict, known: dict, batch: tuple) -> None:
-    """Each given parameter has its default's shape (after a leading batch axis in a batch)."""
     for name, value in given.items():
         want = jax.tree.map(lambda a: (*batch, *np.shape(a)), known[name])
         got = jax.tree.map(np.shape, value)
@@ -169,6 +150,13 @@ def _check_shapes(system: System, given: dict, known: dict, batch: tuple) -> Non
             raise ValueError(f"params[{name!r}] has shape {got}, expected {want}"
                              f"{' (a leading batch axis, then the value)' if batch else ''} for {system.name}'s "
                              f"parameter `{name}`")
+    check_structural_params(system, given)
+    expected = (*batch, system.n_states)
+    if x0 is not None and tuple(np.shape(x0)) != expected:
+        names = ", ".join(system.state_names)
+        got = f"{np.size(x0)} value{'s' if np.size(x0) != 1 else ''}" if np.ndim(x0) <= 1 else f"shape {np.shape(x0)}"
+        raise ValueError(f"x0 has {got}, expected shape {expected}: {system.name} has {system.n_states} "
+                         f"state{'s' if system.n_states != 1 else ''} ({names})")
 
 
 def check_structural_params(system: System, params: dict) -> None:

@@ -28,7 +28,7 @@ objective the runtime minimises, and reports, is ``J = phi(x(T)) + int L dt`` in
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import jax.numpy as jnp
 import numpy as np
@@ -186,63 +186,21 @@ class System:
             p[k] = jnp.asarray(g, dtype=dtype)
         return p
 
-    # ---- compiled functions (generated subclasses override every one) -----------------------------------------
-    @staticmethod
-    def dynamics(x, u, t, params):  # pragma: no cover - overridden
-        """f(x, u, t, p): the state derivative, shape (n_states,)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def running_cost(x, u, t, params):  # pragma: no cover
-        """L(x, u, t, p) in minimisation form: a scalar."""
-        raise NotImplementedError
-
-    @staticmethod
-    def terminal_cost(x, t, params):  # pragma: no cover
-        """phi(x(T), T, p) in minimisation form: a scalar."""
-        raise NotImplementedError
-
-    @staticmethod
-    def dynamics_jac_x(x, u, t, params):  # pragma: no cover
-        """df/dx, shape (n_states, n_states)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def dynamics_jac_u(x, u, t, params):  # pragma: no cover
-        """df/du, shape (n_states, n_controls)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def running_cost_grad_x(x, u, t, params):  # pragma: no cover
-        raise NotImplementedError
-
-    @staticmethod
-    def running_cost_grad_u(x, u, t, params):  # pragma: no cover
-        raise NotImplementedError
-
-    @staticmethod
-    def terminal_cost_grad_x(x, t, params):  # pragma: no cover
-        raise NotImplementedError
-
-    @staticmethod
-    def hamiltonian(x, u, lam, t, params):  # pragma: no cover
-        """H = L + lam . f (minimisation form)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def costate_dynamics(x, u, lam, t, params):  # pragma: no cover
-        """lam' = -dH/dx, shape (n_states,)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def hamiltonian_grad_u(x, u, lam, t, params):  # pragma: no cover
-        """dH/du, shape (n_controls,)."""
-        raise NotImplementedError
-
-    @staticmethod
-    def terminal_costate(x, t, params):  # pragma: no cover
-        """lam(T) = dphi/dx(x(T)): the transversality condition for free final states."""
-        raise NotImplementedError
+    # ---- compiled functions: every generated subclass defines each as a static method ---------------------------
+    # (x, u, t, p) are a state (n_states,), a control (n_controls,), the time and the parameter pytree; every cost and
+    # Hamiltonian is in minimisation form.
+    dynamics: ClassVar[Callable]  # f(x, u, t, p): the state derivative, shape (n_states,)
+    running_cost: ClassVar[Callable]  # L(x, u, t, p): a scalar
+    terminal_cost: ClassVar[Callable]  # phi(x(T), T, p), called as (x, t, p): a scalar
+    dynamics_jac_x: ClassVar[Callable]  # df/dx (x, u, t, p), shape (n_states, n_states)
+    dynamics_jac_u: ClassVar[Callable]  # df/du (x, u, t, p), shape (n_states, n_controls)
+    running_cost_grad_x: ClassVar[Callable]  # dL/dx (x, u, t, p)
+    running_cost_grad_u: ClassVar[Callable]  # dL/du (x, u, t, p)
+    terminal_cost_grad_x: ClassVar[Callable]  # dphi/dx (x, t, p)
+    hamiltonian: ClassVar[Callable]  # H = L + lam . f, called as (x, u, lam, t, p)
+    costate_dynamics: ClassVar[Callable]  # lam' = -dH/dx (x, u, lam, t, p), shape (n_states,)
+    hamiltonian_grad_u: ClassVar[Callable]  # dH/du (x, u, lam, t, p), shape (n_controls,)
+    terminal_costate: ClassVar[Callable]  # lam(T) = dphi/dx(x(T)) (x, t, p): transversality for free final states
 
     # ---- path constraints (schema 2): generated where a spec has any; these defaults mean "none" --------------
     @staticmethod
@@ -261,6 +219,6 @@ class System:
         return jnp.zeros((0, jnp.shape(u)[-1]), dtype=jnp.result_type(x))
 
     @staticmethod
-    def optimal_control(x, lam, t, params):  # pragma: no cover
+    def optimal_control(x, lam, t, params):  # pragma: no cover - generated where optimal_control_kind is not "none"
         """u*(x, lam, t, p) minimising H within the control bounds (see ``optimal_control_kind``)."""
         raise NotImplementedError

@@ -25,7 +25,7 @@ def run(args) -> int:
 
     unknown = sorted(set(args.systems or ()) - set(NAMES))
     if unknown:
-        print(f"myriad rl-reference: error: unknown systems {unknown}", file=sys.stderr)
+        print(f"myriad rl-reference: error: --systems: unknown systems {unknown}", file=sys.stderr)
         return 2
     return run_reference((args.systems or list(NAMES)) if args.write else None, check=args.check)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from myriad.runtime import load, solve
-from myriad.runtime.cli import _parser, _transcription, main
+from myriad.runtime.cli import _parser, _solve_config, main
 from myriad.runtime.integrators import INTEGRATORS
 from myriad.runtime.solve_config import METHODS
 from myriad.runtime.solvers import SOLVERS, Ipopt
@@ -50,10 +50,10 @@ def test_multiple_shooting_on_grid_groups_the_control_intervals():
 
 def test_cli_controls_mean_the_control_grid_on_every_method():
     args = _parser().parse_args(["solve", "van_der_pol", "--transcription", "multiple_shooting", "--controls", "100"])
-    assert _transcription(args) == MultipleShooting(intervals=20, steps_per_interval=5)
+    assert _solve_config(args).build()[0] == MultipleShooting(intervals=20, steps_per_interval=5)
     for name, cls in METHODS.items():
         args = _parser().parse_args(["solve", "van_der_pol", "--transcription", name, "--intervals", "40"])
-        assert _transcription(args) == cls.on_grid(40)
+        assert _solve_config(args).build()[0] == cls.on_grid(40)
     help_text = _parser()._subparsers._group_actions[0].choices["solve"].format_help()
     assert "N uniform intervals (N + 1 control nodes), the same grid for every method" in " ".join(help_text.split())
 
