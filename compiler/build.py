@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import checks, parse, render, symbolic
 from . import lower as lower_mod
-from .errors import CodegenError, Location, SpecError, SpecErrors
+from .errors import CodegenError, ErrorLog, Location, SpecError, SpecErrors
 from .schema import CodegenData, SymbolicProblem
 
 __all__ = ["DEFAULT_OUT", "BuildResult", "Compiled", "build", "compile_file", "compile_spec", "spec_files"]
@@ -36,10 +36,21 @@ class Compiled:
 
 
 def _symbolic(text: str, display: str) -> SymbolicProblem:
+    """Parse, symbolic and check: every independent error of the spec, raised together (:class:`SpecErrors`).
+
+    A pass stops the pipeline only where what follows depends on it: a parse error stops everything (there is no
+    spec to read), a bad name stops the symbolic pass (expressions resolve by name); the symbolic pass hands the
+    check pass a partial problem (None where a field failed), so an undeclared symbol and a negative horizon are
+    both reported.
+    """
     spec = parse.parse_spec(text, display)
-    checks.check_names(spec)
-    sym = symbolic.to_symbolic(spec)
-    checks.check_problem(sym)
+    log = ErrorLog()
+    checks.check_names(spec, log)
+    log.stop()
+    checks.check_equations(spec, log)
+    sym = symbolic.to_symbolic(spec, log)
+    checks.check_problem(sym, log)
+    log.stop()
     return sym
 
 

@@ -14,11 +14,11 @@ import re
 
 import sympy
 
-from .errors import Location, SpecError
+from .errors import ErrorLog, Location, SpecError
 from .expressions import CONSTANTS, FUNCTIONS
 from .schema import ProblemSpec, SymbolicProblem
 
-__all__ = ["RESERVED", "check_names", "check_problem"]
+__all__ = ["RESERVED", "check_equations", "check_names", "check_problem"]
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]*\Z")
 _SYSTEM_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
@@ -40,8 +40,30 @@ def _show(name: str) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def check_names(spec: ProblemSpec) -> None:
-    """System name, symbol names (identifier, not reserved, unique across sections), equations per state."""
+def check_names(spec: ProblemSpec, log: ErrorLog) -> None:
+    """System name, symbol names (identifier, not reserved, unique across sections): every bad name is recorded.
+
+    The symbolic pass resolves expressions by these names, so the pipeline stops after this check when it failed.
+    """
+    log.attempt(_check_system_name, spec)
+    seen: dict[str, str] = {}
+    groups = [
+        ("parameter", [(p.name, p.loc) for p in spec.parameters]),
+        ("definition", [(d.name, d.loc) for d in spec.definitions]),
+        ("state", [(s.name, s.loc) for s in spec.states]),
+        ("control", [(c.name, c.loc) for c in spec.controls]),
+    ]
+    for kind, names in groups:
+        for name, loc in names:
+            log.attempt(_check_symbol_name, spec, kind, name, loc, seen)
+            seen.setdefault(name, kind)
+    for c in spec.path_constraints:
+        if not _IDENT.match(c.name):
+            log.add(_error(spec, f"path constraint name `{_show(c.name)}` must be an ASCII identifier (letters, "
+                           "digits and `_`, starting with a letter), e.g. `keep_out`", c.loc))
+
+
+def _check_system_name(spec: ProblemSpec) -> None:
     stem = os.path.splitext(os.path.basename(spec.file))[0]
     if keyword.iskeyword(spec.name):
         raise _error(spec, f"system name `{spec.name}` is a Python keyword; it names the generated module: choose "
@@ -53,102 +75,124 @@ def check_names(spec: ProblemSpec) -> None:
         raise _error(spec, f"name `{_show(spec.name)}` must equal the file stem `{_show(stem)}`; rename the file or "
                      "the system", spec.name_loc)
 
-    seen: dict[str, str] = {}
-    groups = [
-        ("parameter", [(p.name, p.loc) for p in spec.parameters]),
-        ("definition", [(d.name, d.loc) for d in spec.definitions]),
-        ("state", [(s.name, s.loc) for s in spec.states]),
-        ("control", [(c.name, c.loc) for c in spec.controls]),
-    ]
-    for kind, names in groups:
-        for name, loc in names:
-            if not _IDENT.match(name):
-                why = "must not start with `_`" if name.startswith("_") else "must be an ASCII identifier"
-                raise _error(spec, f"{kind} name `{_show(name)}` {why} (letters, digits and `_`, starting with a "
-                             "letter), e.g. `theta_dot`", loc)
-            if keyword.iskeyword(name) or keyword.issoftkeyword(name):
-                raise _error(spec, f"{kind} name `{name}` is a Python keyword; choose another, e.g. `{name}_`", loc)
-            if name in RESERVED:
-                raise _error(spec, f"{kind} name `{name}` is reserved (a function, constant or name the generated code "
-                             f"uses); choose another, e.g. `{name}_{kind[0]}`", loc)
-            if name in seen:
-                raise _error(spec, f"{kind} name `{name}` is already declared as a {seen[name]}; states, controls, "
-                             "parameters and definitions share one namespace", loc)
-            seen[name] = kind
 
-    for c in spec.path_constraints:
-        if not _IDENT.match(c.name):
-            raise _error(spec, f"path constraint name `{_show(c.name)}` must be an ASCII identifier (letters, digits "
-                         "and `_`, starting with a letter), e.g. `keep_out`", c.loc)
+def _check_symbol_name(spec: ProblemSpec, kind: str, name: str, loc: Location, seen: dict[str, str]) -> None:
+    """One declared symbol: an identifier, no keyword, not reserved, not declared before (``seen``: name → kind)."""
+    if not _IDENT.match(name):
+        why = "must not start with `_`" if name.startswith("_") else "must be an ASCII identifier"
+        raise _error(spec, f"{kind} name `{_show(name)}` {why} (letters, digits and `_`, starting with a "
+                     "letter), e.g. `theta_dot`", loc)
+    if keyword.iskeyword(name) or keyword.issoftkeyword(name):
+        raise _error(spec, f"{kind} name `{name}` is a Python keyword; choose another, e.g. `{name}_`", loc)
+    if name in RESERVED:
+        raise _error(spec, f"{kind} name `{name}` is reserved (a function, constant or name the generated code "
+                     f"uses); choose another, e.g. `{name}_{kind[0]}`", loc)
+    if name in seen:
+        raise _error(spec, f"{kind} name `{name}` is already declared as a {seen[name]}; states, controls, "
+                     "parameters and definitions share one namespace", loc)
 
+
+def check_equations(spec: ProblemSpec, log: ErrorLog) -> None:
+    """One equation per state, and none for anything else: every mismatch is recorded (the symbolic pass does not
+    depend on it, so the pipeline goes on)."""
+    kinds = {**{c.name: "control" for c in spec.controls}, **{s.name: "state" for s in spec.states}}
     state_names = [s.name for s in spec.states]
     for eq in spec.dynamics:
         if eq.name not in state_names:
-            hint = "it is a control: only states have equations" if seen.get(eq.name) == "control" else \
+            hint = "it is a control: only states have equations" if kinds.get(eq.name) == "control" else \
                 f"declared states: {', '.join(state_names)}"
-            raise _error(spec, f"equation for `{_show(eq.name)}`, which is not a state; {hint}", eq.loc)
+            log.add(_error(spec, f"equation for `{_show(eq.name)}`, which is not a state; {hint}", eq.loc))
     have = {eq.name for eq in spec.dynamics}
     for s in spec.states:
         if s.name not in have:
-            raise _error(spec, f"state `{s.name}` has no equation; add `{s.name}: <expression>` under `dynamics:`",
-                         spec.dynamics_loc)
+            log.add(_error(spec, f"state `{s.name}` has no equation; add `{s.name}: <expression>` under `dynamics:`",
+                           spec.dynamics_loc))
 
 
-def check_problem(sym: SymbolicProblem) -> None:
-    """Bounds well-formed, initial and final values inside bounds, horizon, and what each cost may use."""
+def check_problem(sym: SymbolicProblem, log: ErrorLog) -> None:
+    """Bounds well-formed, initial and final values inside bounds, horizon, and what each cost may use.
+
+    Every check runs on its own and records what it finds; a field the symbolic pass could not build (None in a
+    partial problem) is skipped, its error already recorded.
+    """
     spec = sym.spec
     for var, lo, hi in [*zip(spec.states, sym.x_lower, sym.x_upper), *zip(spec.controls, sym.u_lower, sym.u_upper)]:
-        loc = var.bounds_loc or var.loc
-        if lo == math.inf or hi == -math.inf:
-            raise _error(spec, f"bounds of `{var.name}` are [{lo}, {hi}]: the lower bound cannot be +inf nor the "
-                         "upper -inf; write `[-.inf, .inf]` for unbounded", loc)
-        if lo > hi:
-            raise _error(spec, f"bounds of `{var.name}` are reversed: lower {lo:g} > upper {hi:g}; write "
-                         "`[lower, upper]`", loc)
+        log.attempt(_check_bounds, spec, var, lo, hi)
     for s, x0, lo, hi, xf in zip(spec.states, sym.x0, sym.x_lower, sym.x_upper, sym.x_final):
-        if not lo <= x0 <= hi:
-            raise _error(spec, f"initial value {x0:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]; fix the "
-                         "initial value or widen the bounds", s.initial.loc)
-        if xf is not None and not lo <= xf <= hi:
-            raise _error(spec, f"required final value {xf:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]",
-                         s.final.loc)
+        log.attempt(_check_inside, spec, s, x0, lo, hi, xf)
     if sym.free_horizon:
-        _check_free_horizon(sym)
-    if not sym.horizon > 0:
-        raise _error(spec, f"horizon must be positive, got {sym.horizon:g}", spec.horizon.loc)
-    _check_path_bounds(sym)
+        log.attempt(_check_free_horizon, sym)
+    elif sym.horizon is not None and not sym.horizon > 0:
+        log.add(_error(spec, f"horizon must be positive, got {sym.horizon:g}", spec.horizon.loc))
+    for c, e, lo, hi in zip(spec.path_constraints, sym.path, sym.path_lower, sym.path_upper):
+        log.attempt(_check_path_constraint, sym, c, e, lo, hi)
     controls = set(sym.controls)
-    used = sym.terminal.free_symbols & controls
+    used = sym.terminal.free_symbols & controls if sym.terminal is not None else set()
     if used and spec.terminal is not None:
         names = ", ".join(sorted(str(u) for u in used))
-        raise _error(spec, f"the terminal cost uses the control(s) {names}; it is a function of the final state "
-                     "(and parameters) only: move control terms into `running`", spec.terminal.loc)
-    exprs = [("dynamics." + s.name, e, s_eq.expr) for s, e, s_eq in
-             zip(spec.states, sym.dynamics,
-                 sorted(spec.dynamics, key=lambda q: [x.name for x in spec.states].index(q.name)))]
+        log.add(_error(spec, f"the terminal cost uses the control(s) {names}; it is a function of the final state "
+                       "(and parameters) only: move control terms into `running`", spec.terminal.loc))
+    equations = {eq.name: eq.expr for eq in spec.dynamics}
+    exprs = [("dynamics." + s.name, e, equations[s.name]) for s, e in zip(spec.states, sym.dynamics)
+             if s.name in equations]
     exprs.append(("cost.running", sym.running, spec.running))
     if spec.terminal is not None:
         exprs.append(("cost.terminal", sym.terminal, spec.terminal))
     exprs += [(f"path_constraints.{c.name}", e, c.expr) for c, e in zip(spec.path_constraints, sym.path)]
     for field, e, src in exprs:
-        # AccumBounds: what sympy makes of sin(inf) or cos(inf), which no code can print
-        if e.has(sympy.zoo, sympy.nan, sympy.AccumBounds) or e.has(sympy.oo) or e.has(-sympy.oo):
-            raise _error(spec, f"`{field}` evaluates to an infinite or undefined value (e.g. a division by zero); "
-                         "check the expression", src.loc)
-        if e.has(sympy.I):
-            raise _error(spec, f"`{field}` is complex-valued; check the expression", src.loc)
-        bad = _non_real_constant(e)
-        if bad is not None:
-            raise _error(spec, f"the constant `{bad}` has no finite real value (the generated code would compute NaN "
-                         "or inf); check the arguments of its functions", src.loc)
-        if e.is_Relational or isinstance(e, (sympy.logic.boolalg.BooleanFunction, sympy.logic.boolalg.BooleanAtom)):
-            raise _error(spec, f"`{field}` is a condition, not a value; use where(cond, a, b)", src.loc)
+        if e is not None:
+            log.attempt(_check_value, spec, field, e, src)
+
+
+def _check_bounds(spec: ProblemSpec, var, lo: float | None, hi: float | None) -> None:
+    """A state's or control's bounds: not [+inf, ...] nor [..., -inf], and not reversed."""
+    loc = var.bounds_loc or var.loc
+    if lo is None or hi is None:
+        return
+    if lo == math.inf or hi == -math.inf:
+        raise _error(spec, f"bounds of `{var.name}` are [{lo}, {hi}]: the lower bound cannot be +inf nor the "
+                     "upper -inf; write `[-.inf, .inf]` for unbounded", loc)
+    if lo > hi:
+        raise _error(spec, f"bounds of `{var.name}` are reversed: lower {lo:g} > upper {hi:g}; write "
+                     "`[lower, upper]`", loc)
+
+
+def _check_inside(spec: ProblemSpec, s, x0: float | None, lo: float | None, hi: float | None,
+                  xf: float | None) -> None:
+    """A state's initial and required final values inside its bounds (well-formed ones: bad bounds have their own
+    error)."""
+    if lo is None or hi is None or lo > hi or lo == math.inf or hi == -math.inf:
+        return
+    if x0 is not None and not lo <= x0 <= hi:
+        raise _error(spec, f"initial value {x0:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]; fix the "
+                     "initial value or widen the bounds", s.initial.loc)
+    if xf is not None and not lo <= xf <= hi:
+        raise _error(spec, f"required final value {xf:g} of `{s.name}` is outside its bounds [{lo:g}, {hi:g}]",
+                     s.final.loc)
+
+
+def _check_value(spec: ProblemSpec, field: str, e: sympy.Expr, src) -> None:
+    """An expression of the dynamics, costs or path constraints: a finite real value, not a condition."""
+    # AccumBounds: what sympy makes of sin(inf) or cos(inf), which no code can print
+    if e.has(sympy.zoo, sympy.nan, sympy.AccumBounds) or e.has(sympy.oo) or e.has(-sympy.oo):
+        raise _error(spec, f"`{field}` evaluates to an infinite or undefined value (e.g. a division by zero); "
+                     "check the expression", src.loc)
+    if e.has(sympy.I):
+        raise _error(spec, f"`{field}` is complex-valued; check the expression", src.loc)
+    bad = _non_real_constant(e)
+    if bad is not None:
+        raise _error(spec, f"the constant `{bad}` has no finite real value (the generated code would compute NaN "
+                     "or inf); check the arguments of its functions", src.loc)
+    if e.is_Relational or isinstance(e, (sympy.logic.boolalg.BooleanFunction, sympy.logic.boolalg.BooleanAtom)):
+        raise _error(spec, f"`{field}` is a condition, not a value; use where(cond, a, b)", src.loc)
 
 
 def _check_free_horizon(sym: SymbolicProblem) -> None:
     """0 < lower <= guess <= upper, all finite: the transcriptions scale time by T within these bounds."""
     spec, free = sym.spec, sym.spec.free_horizon
     lo, hi = sym.horizon_bounds
+    if lo is None or hi is None:
+        return
     if not (math.isfinite(lo) and math.isfinite(hi)):
         raise _error(spec, f"bounds of the free final time are [{lo:g}, {hi:g}]; both must be finite (the final "
                      "time is scaled within them), e.g. `bounds: [0.5, 10]`", free.bounds_loc)
@@ -159,6 +203,8 @@ def _check_free_horizon(sym: SymbolicProblem) -> None:
         raise _error(spec, f"the lower bound of the free final time must be positive, got {lo:g}; a horizon of "
                      "zero length has no trajectory, e.g. `bounds: [0.1, 10]`", free.bounds_loc)
     g = sym.horizon
+    if g is None:
+        return
     if not math.isfinite(g):
         raise _error(spec, f"the guess of the free final time must be a finite number inside its bounds [{lo:g}, "
                      f"{hi:g}], got {g:g}", free.guess.loc)
@@ -167,11 +213,10 @@ def _check_free_horizon(sym: SymbolicProblem) -> None:
                      "guess between them or widen the bounds", free.guess.loc)
 
 
-def _check_path_bounds(sym: SymbolicProblem) -> None:
-    """Each path constraint: well-ordered bounds, at least one finite, and something a control can change."""
+def _check_path_constraint(sym: SymbolicProblem, c, e, lo: float | None, hi: float | None) -> None:
+    """A path constraint: well-ordered bounds, at least one finite, and something a control can change."""
     spec = sym.spec
-    decisions = set(sym.states) | set(sym.controls)
-    for c, e, lo, hi in zip(spec.path_constraints, sym.path, sym.path_lower, sym.path_upper):
+    if lo is not None and hi is not None:
         if lo == math.inf or hi == -math.inf:
             raise _error(spec, f"bounds of path constraint `{c.name}` are [{lo}, {hi}]: the lower bound cannot be "
                          "+inf nor the upper -inf; write `[lower, .inf]` or `[-.inf, upper]`", c.bounds_loc)
@@ -181,10 +226,10 @@ def _check_path_bounds(sym: SymbolicProblem) -> None:
         if math.isinf(lo) and math.isinf(hi):
             raise _error(spec, f"path constraint `{c.name}` has bounds [-inf, inf], so it constrains nothing; give "
                          "one side a finite bound or remove the constraint", c.bounds_loc)
-        if not e.free_symbols & decisions:
-            raise _error(spec, f"path constraint `{c.name}` uses no state or control, so no trajectory can change "
-                         f"it (it is `{_show(str(e))}`); write an expression of the states and controls, or remove "
-                         "it", c.expr.loc)
+    if e is not None and not e.free_symbols & (set(sym.states) | set(sym.controls)):
+        raise _error(spec, f"path constraint `{c.name}` uses no state or control, so no trajectory can change "
+                     f"it (it is `{_show(str(e))}`); write an expression of the states and controls, or remove "
+                     "it", c.expr.loc)
 
 
 def _non_real_constant(e: sympy.Expr) -> sympy.Expr | None:

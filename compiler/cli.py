@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from .build import build, check_file, compile_file, spec_files
-from .errors import CodegenError, SpecError, SpecErrors
+from .errors import CodegenError, SpecError, flatten, report
 
 __all__ = ["main"]
 
@@ -68,9 +68,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _report(errors, out=None) -> None:
+    """Every error (at most MAX_REPORTED, then how many more), and the count."""
     out = out or sys.stderr  # looked up per call, so redirected or captured stderr gets the messages
-    for e in errors:
-        print(str(e), file=out)
+    errors = [single for e in errors for single in (flatten(e) if isinstance(e, SpecError) else [e])]
+    print(report(errors), file=out)
     n = len(errors)
     print(f"myriadc: {n} error{'s' if n != 1 else ''}", file=out)
 
@@ -127,10 +128,8 @@ def _cmd_check(args) -> int:
     for f in files:
         try:
             check_file(f)
-        except SpecErrors as exc:
-            errors.extend(exc.errors)
-        except SpecError as exc:
-            errors.append(exc)
+        except SpecError as exc:  # one, or several (SpecErrors)
+            errors.extend(flatten(exc))
     if errors:
         _report(errors)
         return 1
@@ -214,8 +213,8 @@ def main(argv=None) -> int:
     try:
         commands = {"build": _cmd_build, "check": _cmd_check, "list": _cmd_list, "show": _cmd_show, "card": _cmd_card}
         return commands[args.command](args)
-    except (SpecError, SpecErrors) as exc:
-        _report(exc.errors if isinstance(exc, SpecErrors) else [exc])
+    except SpecError as exc:  # one, or several (SpecErrors)
+        _report(flatten(exc))
         return 1
     except CodegenError as exc:
         print(f"myriadc: error: {exc}", file=sys.stderr)

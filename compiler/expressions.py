@@ -17,10 +17,14 @@ import math
 
 import sympy
 
-from .errors import Location, SpecError
+from .errors import Location, SpecError, Unresolved
 from .schema import Expr
 
-__all__ = ["CONSTANTS", "FUNCTIONS", "ExpressionParser", "wrap_floor", "wrap_mod"]
+__all__ = ["CONSTANTS", "FAILED", "FUNCTIONS", "ExpressionParser", "wrap_floor", "wrap_mod"]
+
+# A namespace entry whose own expression failed (its error is recorded): a use of it raises Unresolved, so one
+# mistake is reported once, not again at every field that uses the name.
+FAILED = object()
 
 MAX_EXPR_CHARS = 10_000
 MAX_DEPTH = 200
@@ -243,6 +247,8 @@ class ExpressionParser:
     def _name(self, node: ast.Name):
         name = node.id
         if name in self.namespace:
+            if self.namespace[name] is FAILED:
+                raise Unresolved(name)
             return self.namespace[name]
         if name in CONSTANTS:
             return CONSTANTS[name]

@@ -12,7 +12,7 @@ from typing import Any
 import yaml
 
 from . import parse_schema2
-from .errors import Location, SpecError
+from .errors import ErrorLog, Location, SpecError
 from .schema import SUPPORTED_SCHEMAS, Expr, Named, Parameter, ProblemSpec, Variable
 
 __all__ = ["parse_spec", "parse_file"]
@@ -65,6 +65,7 @@ class _Reader:
         self.file = file
         self.lines = tuple(text.splitlines())
         self._loader = yaml.SafeLoader("")
+        self.log = ErrorLog()
 
     def loc(self, node: yaml.Node, path: tuple[str, ...]) -> Location:
         return Location(self.file, node.start_mark.line + 1, node.start_mark.column + 1, path)
@@ -77,36 +78,46 @@ class _Reader:
         line = self.lines[loc.line - 1] if 0 < loc.line <= len(self.lines) else None
         return SpecError(message, loc, line)
 
-    def mapping(self, node: yaml.Node, path: tuple[str, ...], fields: dict[str, bool] | None, what: str):
-        """Check a mapping node; return [(key, key_node, value_node)] in file order."""
+    def mapping(self, node: yaml.Node, path: tuple[str, ...], fields: dict[str, bool] | None, what: str,
+                partial: bool = False):
+        """Check a mapping node; return [(key, key_node, value_node)] in file order.
+
+        A bad key (not a name, a duplicate, an unknown field) is recorded in the log and left out, so the other
+        fields are still read; a missing required field raises (the caller needs it), or with ``partial`` is
+        recorded too (the spec's top level, whose sections are read independently).
+        """
         if not isinstance(node, yaml.MappingNode):
             raise self.error(f"expected a mapping ({what}), got {_kind(node)}", self.loc(node, path))
         items, seen = [], {}
         for key_node, value_node in node.value:
-            if not isinstance(key_node, yaml.ScalarNode) or key_node.tag != "tag:yaml.org,2002:str":
-                raise self.error(
-                    f"keys must be plain names, got {_kind(key_node)}; write `name: ...`", self.loc(key_node, path)
-                )
-            key = key_node.value
-            if key in seen:
-                raise self.error(
-                    f"duplicate key `{_show(key)}` (first at line {seen[key]}); remove one of them",
-                    self.loc(key_node, path + (key,)),
-                )
-            seen[key] = key_node.start_mark.line + 1
-            if fields is not None and key not in fields:
-                allowed = ", ".join(fields)
-                hint = _did_you_mean(key, fields)
-                raise self.error(
-                    f"unknown field `{_show(key)}` in {what}{hint}; allowed fields: {allowed}",
-                    self.loc(key_node, path + (key,)),
-                )
-            items.append((key, key_node, value_node))
-        if fields is not None:
-            for f, required in fields.items():
-                if required and f not in seen:
-                    raise self.error(f"missing required field `{f}` in {what}; add `{f}: ...`", self.loc(node, path))
+            problem = self._bad_key(key_node, path, fields, what, seen)
+            if problem is not None:
+                self.log.add(problem)
+                continue
+            seen[key_node.value] = key_node.start_mark.line + 1
+            items.append((key_node.value, key_node, value_node))
+        missing = [self.error(f"missing required field `{f}` in {what}; add `{f}: ...`", self.loc(node, path))
+                   for f, required in (fields or {}).items() if required and f not in seen]
+        if missing and not partial:
+            raise missing[0]
+        for problem in missing:
+            self.log.add(problem)
         return items
+
+    def _bad_key(self, key_node: yaml.Node, path: tuple[str, ...], fields, what: str, seen: dict) -> SpecError | None:
+        """Why a mapping key is refused (not a plain name, a duplicate, an unknown field), or None."""
+        if not isinstance(key_node, yaml.ScalarNode) or key_node.tag != "tag:yaml.org,2002:str":
+            return self.error(f"keys must be plain names, got {_kind(key_node)}; write `name: ...`",
+                              self.loc(key_node, path))
+        key = key_node.value
+        if key in seen:
+            return self.error(f"duplicate key `{_show(key)}` (first at line {seen[key]}); remove one of them",
+                              self.loc(key_node, path + (key,)))
+        if fields is not None and key not in fields:
+            allowed = ", ".join(fields)
+            return self.error(f"unknown field `{_show(key)}` in {what}{_did_you_mean(key, fields)}; allowed fields: "
+                              f"{allowed}", self.loc(key_node, path + (key,)))
+        return None
 
     def bounds(self, node: yaml.Node, path: tuple[str, ...]) -> tuple[Expr, Expr, Location]:
         """``bounds: [lower, upper]`` under ``path``: the two expressions and where the list is."""
@@ -193,48 +204,72 @@ def _did_you_mean(key: str, options) -> str:
 
 
 def parse_spec(text: str, file: str = "<spec>") -> ProblemSpec:
-    """Parse spec text. Raises :class:`SpecError` pointing at the first problem."""
+    """Parse spec text. Raises :class:`SpecError` (or :class:`SpecErrors`, a subclass) with every independent
+    problem found: the sections, and the entries within them, are read independently; a YAML error or a bad
+    `schema:` stops the pass (nothing after it can be read reliably)."""
     r = _Reader(file, text)
+    spec = None
+    try:
+        spec = _read_spec(r, text, file)
+    except SpecError as exc:  # a fatal problem: what was logged before it comes first
+        r.log.add(exc)
+    r.log.stop()
+    return spec
+
+
+def _read_spec(r: _Reader, text: str, file: str) -> ProblemSpec | None:
     root = _load_yaml(r, text, file)
-    top = {k: (kn, vn) for k, kn, vn in r.mapping(root, (), TOP_FIELDS, "the spec")}
+    top = {k: (kn, vn) for k, kn, vn in r.mapping(root, (), TOP_FIELDS, "the spec", partial=True)}
+    if "schema" not in top:
+        return None
     schema = _schema(r, top)
-
-    name_node = top["name"][1]
-    name = r.text(name_node, ("name",), "the system name")
-    title = r.text(top["title"][1], ("title",), "the title")
-    description = r.text(top["description"][1], ("description",), "the description")
-    source = r.text(top["source"][1], ("source",), "the source") if "source" in top else ""
-    parameters = _parameters(r, top["parameters"][1]) if "parameters" in top else []
-    definitions = []
-    if "definitions" in top:
-        for key, kn, vn in r.mapping(top["definitions"][1], ("definitions",), None, "`definitions`"):
-            definitions.append(Named(key, r.loc(kn, ("definitions", key)), r.expr(vn, ("definitions", key))))
-    states = _variables(r, top["states"][1], "states", STATE_FIELDS, "state")
-    controls = _variables(r, top["controls"][1], "controls", CONTROL_FIELDS, "control")
-    dynamics = []
-    dyn_node = top["dynamics"][1]
-    for key, kn, vn in r.mapping(dyn_node, ("dynamics",), None, "`dynamics` (one equation per state)"):
-        dynamics.append(Named(key, r.loc(kn, ("dynamics", key)), r.expr(vn, ("dynamics", key))))
-    sense, running, terminal = _cost(r, top["cost"][1])
-
-    free_horizon = None
-    if isinstance(top["horizon"][1], yaml.MappingNode):
-        free_horizon = parse_schema2.free_horizon(r, top["horizon"][1])
-        horizon = free_horizon.guess
-    else:
-        horizon = r.expr(top["horizon"][1], ("horizon",))
-    path_constraints = (parse_schema2.path_constraints(r, top["path_constraints"][1])
-                        if "path_constraints" in top else ())
-    reference = _reference(r, top["reference"][1]) if "reference" in top else []
-
+    readers = {
+        "name": lambda n: r.text(n, ("name",), "the system name"),
+        "title": lambda n: r.text(n, ("title",), "the title"),
+        "description": lambda n: r.text(n, ("description",), "the description"),
+        "source": lambda n: r.text(n, ("source",), "the source"),
+        "parameters": lambda n: _parameters(r, n),
+        "definitions": lambda n: _named(r, n, "definitions", "`definitions`"),
+        "states": lambda n: _variables(r, n, "states", STATE_FIELDS, "state"),
+        "controls": lambda n: _variables(r, n, "controls", CONTROL_FIELDS, "control"),
+        "dynamics": lambda n: _named(r, n, "dynamics", "`dynamics` (one equation per state)"),
+        "cost": lambda n: _cost(r, n),
+        "horizon": lambda n: _horizon(r, n),
+        "path_constraints": lambda n: parse_schema2.path_constraints(r, n),
+        "reference": lambda n: _reference(r, n),
+    }
+    # Each section on its own: an error in one is recorded and the others are still read.
+    f = {key: r.log.attempt(read, top[key][1]) for key, read in readers.items() if key in top}
+    if r.log.errors:
+        return None
+    free_horizon, horizon = f["horizon"]
     return ProblemSpec(
         file=file, lines=r.lines, sha256=hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest(),
-        schema=schema, name=name, name_loc=r.loc(name_node, ("name",)), title=title, description=description,
-        source=source, parameters=tuple(parameters), definitions=tuple(definitions), states=tuple(states),
-        controls=tuple(controls), dynamics=tuple(dynamics), dynamics_loc=r.loc(dyn_node, ("dynamics",)),
-        sense=sense, running=running, terminal=terminal, horizon=horizon, reference=tuple(reference),
-        free_horizon=free_horizon, path_constraints=path_constraints,
+        schema=schema, name=f["name"], name_loc=r.loc(top["name"][1], ("name",)), title=f["title"],
+        description=f["description"], source=f.get("source", ""), parameters=tuple(f.get("parameters", ())),
+        definitions=tuple(f.get("definitions", ())), states=tuple(f["states"]), controls=tuple(f["controls"]),
+        dynamics=tuple(f["dynamics"]), dynamics_loc=r.loc(top["dynamics"][1], ("dynamics",)), sense=f["cost"][0],
+        running=f["cost"][1], terminal=f["cost"][2], horizon=horizon, reference=tuple(f.get("reference", ())),
+        free_horizon=free_horizon, path_constraints=f.get("path_constraints", ()),
     )
+
+
+def _named(r: _Reader, node: yaml.Node, section: str, what: str) -> list[Named]:
+    """A mapping of name → expression (`definitions`, `dynamics`); each entry read on its own."""
+    return [r.log.attempt(_named_entry, r, section, key, kn, vn) for key, kn, vn in r.mapping(node, (section,), None,
+                                                                                                 what)]
+
+
+def _named_entry(r: _Reader, section: str, key: str, kn: yaml.Node, vn: yaml.Node) -> Named:
+    return Named(key, r.loc(kn, (section, key)), r.expr(vn, (section, key)))
+
+
+def _horizon(r: _Reader, node: yaml.Node):
+    """``(free_horizon, horizon)``: a fixed horizon's expression, or a free final time and its guess."""
+    if isinstance(node, yaml.MappingNode):
+        free = parse_schema2.free_horizon(r, node)
+        return free, free.guess
+    return None, r.expr(node, ("horizon",))
 
 
 def _load_yaml(r: _Reader, text: str, file: str) -> yaml.Node:
@@ -282,82 +317,93 @@ def _schema(r: _Reader, top: dict) -> int:
 
 
 def _parameters(r: _Reader, node: yaml.Node) -> list[Parameter]:
-    parameters = []
-    for key, kn, vn in r.mapping(node, ("parameters",), None, "`parameters`"):
-        path = ("parameters", key)
-        if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
-            parameters.append(Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",))))
-            continue
-        f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
-        learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
-        guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
-        if learnable and guess is None:
-            raise r.error(f"learnable parameter `{key}` needs a `guess:` (the starting value for system "
-                          "identification)", r.loc(vn, path))
-        if guess is not None and not learnable:
-            raise r.error("`guess` is only used with `learnable: true`; add `learnable: true` or remove `guess`",
-                          r.loc(f["guess"], path + ("guess",)))
-        parameters.append(Parameter(
-            name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
-            description=(r.text(f["description"], path + ("description",), "a description")
-                         if "description" in f else ""),
-            units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
-            learnable=learnable, guess=guess,
-        ))
-    return parameters
+    """The `parameters` section; each parameter read on its own."""
+    return [r.log.attempt(_parameter, r, key, kn, vn) for key, kn, vn in r.mapping(node, ("parameters",), None,
+                                                                                   "`parameters`")]
+
+
+def _parameter(r: _Reader, key: str, kn: yaml.Node, vn: yaml.Node) -> Parameter:
+    path = ("parameters", key)
+    if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
+        return Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",)))
+    f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
+    learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
+    guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
+    if learnable and guess is None:
+        raise r.error(f"learnable parameter `{key}` needs a `guess:` (the starting value for system "
+                      "identification)", r.loc(vn, path))
+    if guess is not None and not learnable:
+        raise r.error("`guess` is only used with `learnable: true`; add `learnable: true` or remove `guess`",
+                      r.loc(f["guess"], path + ("guess",)))
+    return Parameter(
+        name=key, loc=r.loc(kn, path), value=r.expr(f["value"], path + ("value",)),
+        description=(r.text(f["description"], path + ("description",), "a description")
+                     if "description" in f else ""),
+        units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
+        learnable=learnable, guess=guess,
+    )
 
 
 def _cost(r: _Reader, node: yaml.Node) -> tuple:
-    """``(sense, running, terminal)`` of the `cost` section (terminal None when absent)."""
+    """``(sense, running, terminal)`` of the `cost` section (terminal None when absent); each read on its own."""
     cost = {k: v for k, _, v in r.mapping(node, ("cost",), COST_FIELDS, "`cost`")}
-    sense = r.scalar(cost["sense"], ("cost", "sense"))
+    sense = r.log.attempt(_sense, r, cost["sense"])
+    running = r.log.attempt(r.expr, cost["running"], ("cost", "running"))
+    terminal = r.log.attempt(r.expr, cost["terminal"], ("cost", "terminal")) if "terminal" in cost else None
+    return sense, running, terminal
+
+
+def _sense(r: _Reader, node: yaml.Node) -> str:
+    sense = r.scalar(node, ("cost", "sense"))
     if sense not in SENSES:
         raise r.error(f"`sense` must be `minimize` or `maximize`, got `{_show(str(sense))}`",
-                      r.loc(cost["sense"], ("cost", "sense")))
-    running = r.expr(cost["running"], ("cost", "running"))
-    terminal = r.expr(cost["terminal"], ("cost", "terminal")) if "terminal" in cost else None
-    return sense, running, terminal
+                      r.loc(node, ("cost", "sense")))
+    return sense
 
 
 def _reference(r: _Reader, node: yaml.Node) -> list[tuple[str, object]]:
     """The `reference` section's ``(key, value)`` pairs: a text note and finite numbers (minimisation form)."""
-    reference = []
-    for key, _, vn in r.mapping(node, ("reference",), REFERENCE_FIELDS, "`reference`"):
-        value = r.scalar(vn, ("reference", key))
-        if key == "note":
-            if not isinstance(value, str):
-                raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
-            r.valid_unicode(value, vn, ("reference", key))
-        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
-                          r.loc(vn, ("reference", key)))
-        else:
-            value = float(value)
-        reference.append((key, value))
-    return reference
+    return [r.log.attempt(_reference_entry, r, key, vn)
+            for key, _, vn in r.mapping(node, ("reference",), REFERENCE_FIELDS, "`reference`")]
+
+
+def _reference_entry(r: _Reader, key: str, vn: yaml.Node) -> tuple[str, object]:
+    value = r.scalar(vn, ("reference", key))
+    if key == "note":
+        if not isinstance(value, str):
+            raise r.error("`note` must be text", r.loc(vn, ("reference", key)))
+        r.valid_unicode(value, vn, ("reference", key))
+        return key, value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise r.error(f"`{key}` must be a finite number (minimisation form), got `{_show(str(value))}`",
+                      r.loc(vn, ("reference", key)))
+    return key, float(value)
 
 
 def _variables(r: _Reader, node: yaml.Node, section: str, fields: dict[str, bool], kind: str) -> list[Variable]:
-    out = []
+    """The `states` or `controls` section; each variable read on its own."""
     items = r.mapping(node, (section,), None, f"`{section}`")
     if not items:
         raise r.error(f"`{section}` is empty; declare at least one {kind}", r.loc(node, (section,)))
-    for key, kn, vn in items:
-        path = (section, key)
-        f = {k: v for k, _, v in r.mapping(vn, path, fields, f"{kind} `{_show(key)}`")}
-        lower = upper = bounds_loc = None
-        if "bounds" in f:
-            lower, upper, bounds_loc = r.bounds(f["bounds"], path)
-        out.append(Variable(
-            name=key, loc=r.loc(kn, path), kind=kind,
-            initial=r.expr(f["initial"], path + ("initial",)) if "initial" in f else None,
-            final=r.expr(f["final"], path + ("final",)) if "final" in f else None,
-            lower=lower, upper=upper, bounds_loc=bounds_loc,
-            description=(r.text(f["description"], path + ("description",), "a description")
-                         if "description" in f else ""),
-            units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
-        ))
-    return out
+    return [r.log.attempt(_variable, r, key, kn, vn, section, fields, kind) for key, kn, vn in items]
+
+
+def _variable(r: _Reader, key: str, kn: yaml.Node, vn: yaml.Node, section: str, fields: dict[str, bool],
+              kind: str) -> Variable:
+    path = (section, key)
+    f = {k: v for k, _, v in r.mapping(vn, path, fields, f"{kind} `{_show(key)}`")}
+    lower = upper = bounds_loc = None
+    if "bounds" in f:
+        lower, upper, bounds_loc = r.bounds(f["bounds"], path)
+    return Variable(
+        name=key, loc=r.loc(kn, path), kind=kind,
+        initial=r.expr(f["initial"], path + ("initial",)) if "initial" in f else None,
+        final=r.expr(f["final"], path + ("final",)) if "final" in f else None,
+        lower=lower, upper=upper, bounds_loc=bounds_loc,
+        description=(r.text(f["description"], path + ("description",), "a description")
+                     if "description" in f else ""),
+        units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
+    )
 
 
 def parse_file(path: str, display: str | None = None) -> ProblemSpec:

@@ -30,7 +30,7 @@ def require_schema2(r, schema: int, top: dict) -> None:
         key_node = top["path_constraints"][0]
         raise r.error("`path_constraints` needs `schema: 2` (this file declares `schema: 1`); change the `schema:` "
                       "line to `schema: 2`", r.loc(key_node, ("path_constraints",)))
-    horizon = top["horizon"][1]
+    horizon = top["horizon"][1] if "horizon" in top else None  # a missing horizon is reported on its own
     if isinstance(horizon, yaml.MappingNode):
         raise r.error("a free final time (`horizon: {free: true, ...}`) needs `schema: 2` (this file declares "
                       "`schema: 1`); change the `schema:` line to `schema: 2`, or write the horizon as a number",
@@ -60,24 +60,25 @@ def free_horizon(r, node: yaml.MappingNode) -> FreeHorizon:
 
 
 def path_constraints(r, node: yaml.Node) -> tuple[PathConstraint, ...]:
-    """``path_constraints:`` name → ``{expression, bounds, description}``, in file order."""
+    """``path_constraints:`` name → ``{expression, bounds, description}``, in file order; each read on its own."""
     items = r.mapping(node, ("path_constraints",), None, "`path_constraints` (name: {expression: ..., bounds: "
                                                           "[lower, upper]})")
     if not items:
         raise r.error("`path_constraints` is empty; declare at least one constraint or remove the field",
                       r.loc(node, ("path_constraints",)))
-    out = []
-    for key, kn, vn in items:
-        path = ("path_constraints", key)
-        f = {k: v for k, _, v in r.mapping(vn, path, PATH_FIELDS, f"path constraint `{r.show(key)}`")}
-        if "bounds" not in f:
-            raise r.error(f"path constraint `{r.show(key)}` needs `bounds: [lower, upper]`; write `.inf` or `-.inf` "
-                          "for the side without a bound, e.g. `bounds: [-.inf, 2]`", r.loc(vn, path))
-        lower, upper, bounds_loc = r.bounds(f["bounds"], path)
-        out.append(PathConstraint(
-            name=key, loc=r.loc(kn, path), expr=r.expr(f["expression"], path + ("expression",)),
-            lower=lower, upper=upper, bounds_loc=bounds_loc,
-            description=(r.text(f["description"], path + ("description",), "a description")
-                         if "description" in f else ""),
-        ))
-    return tuple(out)
+    return tuple(r.log.attempt(_path_constraint, r, key, kn, vn) for key, kn, vn in items)
+
+
+def _path_constraint(r, key: str, kn: yaml.Node, vn: yaml.Node) -> PathConstraint:
+    path = ("path_constraints", key)
+    f = {k: v for k, _, v in r.mapping(vn, path, PATH_FIELDS, f"path constraint `{r.show(key)}`")}
+    if "bounds" not in f:
+        raise r.error(f"path constraint `{r.show(key)}` needs `bounds: [lower, upper]`; write `.inf` or `-.inf` "
+                      "for the side without a bound, e.g. `bounds: [-.inf, 2]`", r.loc(vn, path))
+    lower, upper, bounds_loc = r.bounds(f["bounds"], path)
+    return PathConstraint(
+        name=key, loc=r.loc(kn, path), expr=r.expr(f["expression"], path + ("expression",)),
+        lower=lower, upper=upper, bounds_loc=bounds_loc,
+        description=(r.text(f["description"], path + ("description",), "a description")
+                     if "description" in f else ""),
+    )

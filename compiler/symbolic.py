@@ -14,8 +14,8 @@ import math
 
 import sympy
 
-from .errors import SpecError
-from .expressions import FUNCTIONS, ExpressionParser, wrap_floor, wrap_mod
+from .errors import ErrorLog, SpecError
+from .expressions import FAILED, FUNCTIONS, ExpressionParser, wrap_floor, wrap_mod
 from .schema import Expr, ProblemSpec, SymbolicProblem
 
 # FUNCTIONS, ExpressionParser, wrap_mod and wrap_floor live in .expressions; re-exported for existing importers.
@@ -28,93 +28,108 @@ def _hint(kinds: str) -> str:
     return f"declare it under {kinds}"
 
 
-def to_symbolic(spec: ProblemSpec) -> SymbolicProblem:
+def to_symbolic(spec: ProblemSpec, log: ErrorLog) -> SymbolicProblem:
     """Build sympy expressions for every expression and evaluate every constant field.
 
-    Assumes :func:`compiler.checks.check_names` passed (names are valid and unique).
+    Assumes :func:`compiler.checks.check_names` passed (names are valid and unique). Each field is built on its own:
+    one that fails is recorded in ``log`` and is None in the result, a partial problem that the check pass reads
+    (skipping what is None) before the pipeline stops.
     """
-    lines = spec.lines
     params = tuple(sympy.Symbol(p.name, real=True) for p in spec.parameters)
     states = tuple(sympy.Symbol(s.name, real=True) for s in spec.states)
     controls = tuple(sympy.Symbol(c.name, real=True) for c in spec.controls)
 
-    const_ns, param_values = _parameter_values(spec)
-    numeric_params = {sym: sympy.Rational(fractions.Fraction(v)) for sym, v in zip(params, param_values)}
+    const_ns, param_values = _parameter_values(spec, log)
+    numeric_params = {sym: sympy.Rational(fractions.Fraction(v)) for sym, v in zip(params, param_values)
+                      if v is not None}
+    full_ns, definitions = _definitions(spec, (*params, *states, *controls), log)
 
-    # Definitions: inline in order; a definition may use any earlier definition (no cycles by construction).
-    full_ns: dict = {str(s): s for s in (*params, *states, *controls)}
-    full_ns["t"] = TIME
-    definitions = {}
-    def_parser = ExpressionParser(full_ns, lines, _hint("parameters:, states:, controls: or definitions: (a "
-                                                       "definition may use only definitions written above it)"))
-    for d in spec.definitions:
-        definitions[d.name] = def_parser.parse(d.expr)
-        full_ns[d.name] = definitions[d.name]
-
-    expr_parser = ExpressionParser(full_ns, lines, _hint("parameters:, states:, controls: or definitions:"))
-    dynamics_by_state = {}
-    for eq in spec.dynamics:
-        dynamics_by_state[eq.name] = (eq, expr_parser.parse(eq.expr))
-    dynamics = tuple(dynamics_by_state[s.name][1] if s.name in dynamics_by_state else None for s in spec.states)
+    expr_parser = ExpressionParser(full_ns, spec.lines, _hint("parameters:, states:, controls: or definitions:"))
+    dynamics_by_state = {eq.name: log.attempt(expr_parser.parse, eq.expr) for eq in spec.dynamics}
+    dynamics = tuple(dynamics_by_state.get(s.name) for s in spec.states)
 
     # The IR keeps the spec's own sense; lowering negates a payoff into minimisation form.
-    running = expr_parser.parse(spec.running)
-    terminal = expr_parser.parse(spec.terminal) if spec.terminal is not None else sympy.Integer(0)
-    path = tuple(_path_expression(expr_parser, c.expr) for c in spec.path_constraints)
+    running = log.attempt(expr_parser.parse, spec.running)
+    terminal = log.attempt(expr_parser.parse, spec.terminal) if spec.terminal is not None else sympy.Integer(0)
+    path = tuple(log.attempt(_path_expression, expr_parser, c.expr) for c in spec.path_constraints)
 
     # Constant fields: numbers, pi, inf, parameters at nominal values, parameter-only definitions.
     constant_ns = dict(const_ns)
     for name, e in definitions.items():
-        if e.free_symbols <= set(params):
+        if e is FAILED or (e.free_symbols <= set(params) and not e.free_symbols <= set(numeric_params)):
+            constant_ns[name] = FAILED  # it failed, or uses a parameter that did
+        elif e.free_symbols <= set(params):
             # Numerically (30 digits), not by exact substitution: `3**k` with k = 1e9 would build a huge integer.
             constant_ns[name] = e.evalf(30, subs=numeric_params)
     for name in full_ns:
         constant_ns.setdefault(name, None)  # declared but not constant: explained below
-    cparser = _ConstantParser(constant_ns, lines)
-
-    def const(e: Expr | None, default: float, finite: bool) -> float:
-        return default if e is None else _constant(cparser, e, finite=finite)
-
-    x0 = tuple(const(s.initial, math.nan, True) for s in spec.states)
-    x_lower = tuple(const(s.lower, -math.inf, False) for s in spec.states)
-    x_upper = tuple(const(s.upper, math.inf, False) for s in spec.states)
-    u_lower = tuple(const(c.lower, -math.inf, False) for c in spec.controls)
-    u_upper = tuple(const(c.upper, math.inf, False) for c in spec.controls)
-    x_final = tuple(None if s.final is None else _constant(cparser, s.final, finite=True) for s in spec.states)
-    # A free horizon's guess and bounds may read as infinite here: the check pass refuses them with the reason.
-    free = spec.free_horizon
-    horizon = _constant(cparser, spec.horizon, finite=free is None)
-    horizon_bounds = None if free is None else (const(free.lower, math.nan, False), const(free.upper, math.nan, False))
-    path_lower = tuple(const(c.lower, -math.inf, False) for c in spec.path_constraints)
-    path_upper = tuple(const(c.upper, math.inf, False) for c in spec.path_constraints)
+    cparser = _ConstantParser(constant_ns, spec.lines)
+    fields = _constant_fields(spec, cparser, log)
     # The parameters these constants were evaluated with (directly or through a definition): the generated code
     # holds the numbers, so a new value of such a parameter at run time could not move them.
     used = set(cparser.used)
     for name in cparser.used:
-        if name in definitions:
+        if name in definitions and definitions[name] is not FAILED:
             used |= {str(sym) for sym in definitions[name].free_symbols}
     structural = tuple(p.name for p in spec.parameters if p.name in used)
-    guesses = tuple(None if p.guess is None else _constant(cparser, p.guess, finite=True) for p in spec.parameters)
+    # After `structural`: a guess is only a starting value, so the parameters it uses are not structural.
+    guesses = tuple(None if p.guess is None else log.attempt(_constant, cparser, p.guess, finite=True)
+                    for p in spec.parameters)
 
     return SymbolicProblem(
         spec=spec, states=states, controls=controls, params=params, time=TIME, dynamics=dynamics,
-        running=running, terminal=terminal, param_values=tuple(param_values), guesses=guesses, x0=x0,
-        x_lower=x_lower, x_upper=x_upper, u_lower=u_lower, u_upper=u_upper, x_final=x_final, horizon=horizon,
-        structural_params=structural, horizon_bounds=horizon_bounds, path=path, path_lower=path_lower,
-        path_upper=path_upper,
+        running=running, terminal=terminal, param_values=tuple(param_values), guesses=guesses,
+        structural_params=structural, path=path, **fields,
     )
 
 
-def _parameter_values(spec: ProblemSpec) -> tuple[dict, list[float]]:
-    """The parameters' values, evaluated in order (a value may use earlier parameters), and the namespace of exact
-    rationals that constant fields are evaluated in."""
+def _constant_fields(spec: ProblemSpec, cparser: _ConstantParser, log: ErrorLog) -> dict:
+    """Every constant field evaluated, as keyword arguments of :class:`SymbolicProblem` (None where one failed)."""
+
+    def const(e: Expr | None, default: float | None, finite: bool) -> float | None:
+        return default if e is None else log.attempt(_constant, cparser, e, finite=finite)
+
+    # A free horizon's guess and bounds may read as infinite here: the check pass refuses them with the reason.
+    free = spec.free_horizon
+    return dict(
+        x0=tuple(const(s.initial, math.nan, True) for s in spec.states),
+        x_lower=tuple(const(s.lower, -math.inf, False) for s in spec.states),
+        x_upper=tuple(const(s.upper, math.inf, False) for s in spec.states),
+        u_lower=tuple(const(c.lower, -math.inf, False) for c in spec.controls),
+        u_upper=tuple(const(c.upper, math.inf, False) for c in spec.controls),
+        x_final=tuple(const(s.final, None, True) for s in spec.states),
+        horizon=const(spec.horizon, None, free is None),
+        horizon_bounds=None if free is None else (const(free.lower, math.nan, False),
+                                                  const(free.upper, math.nan, False)),
+        path_lower=tuple(const(c.lower, -math.inf, False) for c in spec.path_constraints),
+        path_upper=tuple(const(c.upper, math.inf, False) for c in spec.path_constraints),
+    )
+
+
+def _definitions(spec: ProblemSpec, symbols: tuple, log: ErrorLog) -> tuple[dict, dict]:
+    """The namespace of dynamics and costs (symbols, ``t``, definitions inlined in order; a definition may use any
+    earlier one, so there are no cycles), and the definitions' expressions (FAILED where one failed)."""
+    full_ns: dict = {str(s): s for s in symbols}
+    full_ns["t"] = TIME
+    definitions = {}
+    def_parser = ExpressionParser(full_ns, spec.lines, _hint("parameters:, states:, controls: or definitions: (a "
+                                                            "definition may use only definitions written above it)"))
+    for d in spec.definitions:
+        e = log.attempt(def_parser.parse, d.expr)
+        definitions[d.name] = full_ns[d.name] = FAILED if e is None else e
+    return full_ns, definitions
+
+
+def _parameter_values(spec: ProblemSpec, log: ErrorLog) -> tuple[dict, list[float | None]]:
+    """The parameters' values, evaluated in order (a value may use earlier parameters; None where one failed), and
+    the namespace of exact rationals that constant fields are evaluated in."""
     const_ns: dict = {}
     param_values = []
     for p in spec.parameters:
         parser = ExpressionParser(const_ns, spec.lines,
                                   "a parameter value may use only numbers, pi and earlier parameters")
-        value = _constant(parser, p.value, finite=True)
-        const_ns[p.name] = sympy.Rational(fractions.Fraction(value))
+        value = log.attempt(_constant, parser, p.value, finite=True)
+        const_ns[p.name] = FAILED if value is None else sympy.Rational(fractions.Fraction(value))
         param_values.append(value)
     return const_ns, param_values
 
