@@ -17,14 +17,12 @@ parameters (:func:`~myriad.runtime.data.default_data`).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 from .data import batch_data, default_data, require_float64
 from .loader import load
 from .method import AbstractMethod
-from .solution import Solution
-from .solution import resimulate as _resimulate  # solve() has a keyword argument `resimulate`
+from .solution import AGREEMENT_TOLERANCE, Solution, with_resimulation
 from .system import System
 from .transcriptions import TRANSCRIPTIONS, SingleShooting
 from .transcriptions.base import AbstractTranscription, transcribe
@@ -69,18 +67,22 @@ def solve(
         params: parameter values overriding the spec's (a partial dict is fine).
         x0: the initial state (default: the spec's).
         z0: a starting point for the method (default: its own guess).
-        resimulate: also evaluate the controls with the adaptive integrator.
+        resimulate: also evaluate the controls with the adaptive integrator, and say whether the discretised and
+            re-simulated answers agree (``agreement``, within ``tolerance`` or else
+            :data:`~myriad.runtime.solution.AGREEMENT_TOLERANCE`). Mesh refinement re-simulates whatever this says.
         tolerance: refine the mesh (:mod:`~myriad.runtime.transcriptions.refine`): solve again on non-uniform grids,
-            splitting the intervals whose error estimate exceeds ``tolerance``, until the estimate meets it or a limit
-            is reached (direct transcriptions only; with a free final time the grid is refined in tau = t / T and
+            splitting the intervals whose error estimate exceeds ``tolerance``, until the estimate meets it and the
+            discretised and re-simulated cost and final values agree within it, or a limit is reached (direct
+            transcriptions only; with a free final time the grid is refined in tau = t / T and
             each level starts from the previous T). None: one solve on the transcription's own grid.
         max_refinements: the most refined grids after the first solve (default 10); needs ``tolerance``.
         max_intervals: the largest grid refinement may build (default 2000); needs ``tolerance``.
 
     Returns:
         A :class:`Solution`; check ``converged`` (a failed solve is returned, never reported as a success) and,
-        after refinement, ``refinement["met"]`` (or ``accurate`` for both). Schema 2 systems: ``final_time`` is the
-        solved T of a free final time, ``path_violation`` the largest path-constraint violation over the points.
+        after refinement, ``refinement["met"]`` (or ``accurate`` for both); ``agreement`` (and
+        ``accuracy_warning``) whether the discretised answer survives re-simulation. Schema 2 systems: ``final_time``
+        is the solved T of a free final time, ``path_violation`` the largest path-constraint violation over the points.
 
     Raises:
         RuntimeError: JAX is in float32 (its default): the message gives the one-line fix.
@@ -103,10 +105,8 @@ def solve(
         sol = method.solve_problem(system, solver, data, z0)
     else:
         sol = solve_refined(system, method, solver, data, refine, z0)
-    if resimulate:
-        cost, defect, violation = _resimulate(system, sol.times, sol.controls, data)
-        sol = dataclasses.replace(sol, simulated_cost=cost, simulated_defect=defect,
-                                  simulated_bound_violation=violation)
+    if resimulate and sol.agreement is None:  # refinement re-simulates its last grid itself
+        sol = with_resimulation(system, sol, data, AGREEMENT_TOLERANCE if refine is None else refine.tolerance)
     return sol
 
 

@@ -7,10 +7,13 @@ own start state, under the control the method assumes on that interval:
 
     e_k,i = | x_{k+1,i} - x~_i(t_{k+1}) | / s_i,     x~' = f(x~, u(t), t),  x~(t_k) = x_k,
 
-with s the state's nominal scale (:func:`~myriad.runtime.transcriptions.state_scale`, the scale of the defect rows),
-and the estimate is max over k and i. This is Betts' relative local error in its "re-integrate each interval" form
-(Betts 2010, sec. 4.7.1): for a method of local order p + 1 it falls as h^{p+1}, so halving the step of Heun shooting
-or trapezoidal collocation divides it by about 8, of RK4 shooting or Hermite-Simpson by about 32.
+with s_i = 1 + max |x_i| over the solution's points (:func:`~myriad.runtime.solution.state_magnitudes`, Betts' weight
+w_i + 1), and the estimate is max over k and i. The scale is the solution's own magnitude, an absolute and a relative
+tolerance in one, as an ODE solver's atol + rtol |x| with atol = rtol: never the state's bounds, so a wide safety bound
+([-50, 50] around a state within [-2, 2]) cannot loosen the criterion (with the bounds as the scale it was 50 times
+looser there). This is Betts' relative local error in its "re-integrate each interval" form (Betts 2010, sec. 4.7.1):
+for a method of local order p + 1 it falls as h^{p+1}, so halving the step of Heun shooting or trapezoidal collocation
+divides it by about 8, of RK4 shooting or Hermite-Simpson by about 32.
 
 The control on an interval is the one the method's rule sees: the linear interpolant of its two node values
 (shooting, trapezoidal), or for Hermite-Simpson (quadrature "simpson", whose grid interleaves nodes and midpoints)
@@ -41,8 +44,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..solution import state_magnitudes
 from ..system import System
-from .nominal_scales import state_scale
 
 __all__ = ["ErrorEstimate", "REFERENCE_SUBSTEPS", "estimate", "interval_errors", "local_errors"]
 
@@ -87,11 +90,7 @@ def _reference_end(f, x, t, h, u0, um, u1, substeps):
 
 
 def _errors_body(system: System, substeps: int):
-    # The scale stays a NumPy constant: a device array closed over by a function traced inside another program becomes
-    # a hidden argument of the compiled executable, which then refuses the caller's arguments.
-    scale = np.asarray(state_scale(system), dtype=np.float64)
-
-    def errors(params, t0, h, x0, x1, u0, um, u1):
+    def errors(params, scale, t0, h, x0, x1, u0, um, u1):
         f = lambda x, u, t: system.dynamics(x, u, t, params)  # noqa: E731
         ref = jax.vmap(lambda *a: _reference_end(f, *a, substeps))(x0, t0, h, u0, um, u1)
         finite = jnp.all(jnp.isfinite(jnp.concatenate([x0, x1, u0, um, u1], axis=1)), axis=1, keepdims=True)
@@ -140,7 +139,8 @@ def interval_errors(system: System, times, states, controls, params, *, midpoint
     else:
         t, x, u = times, states, controls
         um = 0.5 * (u[:-1] + u[1:])
-    return _errors_body(system, int(substeps))(params, t[:-1], t[1:] - t[:-1], x[:-1], x[1:], u[:-1], um, u[1:])
+    scale = state_magnitudes(states)
+    return _errors_body(system, int(substeps))(params, scale, t[:-1], t[1:] - t[:-1], x[:-1], x[1:], u[:-1], um, u[1:])
 
 
 def estimate(per_interval, interval_times) -> ErrorEstimate:
