@@ -1,14 +1,9 @@
 """The expert Algorithm 2 imitates when it is not the true optimum: one recorded trajectory of a
 system-identification dataset (:mod:`myriad.runtime.learn.dataset`).
 
-    expert = expert_from_dataset("data/cancer.npz", "cancer_treatment", split="train", index=0)
-    run_e2e("cancer_treatment", E2EConfig(model="node", init="sysid"), expert=expert)
-
 A dataset made with ``Sampling(controls="around", spread=0.0, x0_std=0.0, noise=...)`` around a plan is the usual
-source: the expert's controls replayed exactly, its states observed with noise. The recorded trajectory must start at
-the spec's x0 (the planner plans from there), so a dataset with perturbed starts (``x0_std > 0``) is refused, as is a
-grid other than the transcription's. The expert's ``cost`` and ``defect`` are those of its controls applied to the
-true system by the transcription's integrator: what the learned plan is compared with.
+source: the expert's controls replayed exactly, its states observed with noise. The expert's ``cost`` and ``defect``
+are those of its controls applied to the true system by the transcription's integrator.
 """
 
 from __future__ import annotations
@@ -36,10 +31,8 @@ def expert_from_dataset(dataset: Dataset | str | os.PathLike, system: System | s
                         transcription: Any = None, *, split: str = "train", index: int = 0) -> Solution:
     """Trajectory ``index`` of ``split`` as a converged :class:`Solution` on ``transcription``'s grid.
 
-    Raises:
-        ValueError: another spec's dataset (both hashes named), an unknown split or an index out of range, perturbed
-            starts, or a grid that is not the transcription's (a shooting transcription with ``controls`` equal to
-            the dataset's intervals, uniform, on the spec's horizon); all before any work.
+    ValueError, before any work: another spec's dataset, an unknown split or an index out of range, perturbed starts
+    (the planner starts at the spec's x0), or a grid that is not the transcription's.
     """
     system = system if isinstance(system, System) else load(system)
     source = "the given dataset"

@@ -7,16 +7,11 @@ itself (:meth:`Extragradient.stepper`'s ``iterate``, not a copy of it) runs a *f
     v_{k+1/2} = \Pi\big(v_k + T(G(v_k; \theta))\big), \qquad v_{k+1} = \Pi\big(v_k + T(G(v_{k+1/2}; \theta))\big),
     \qquad k = 0, \dots, K - 1,
 
-with ``v = (p, lambda, mu)`` and the optax step rules ``T`` (their states are part of the carry), so that the planned
-``z_K(theta)`` is an ordinary differentiable function of the model's parameters (through ``data.params``) and of the
-warm start. Each step is wrapped in ``jax.checkpoint``: reverse mode keeps only the carry of every step and recomputes
-one step's internals on the way back, so memory and time grow linearly in K and no Jacobian is ever formed (a
-reverse pass is one vector-Jacobian product per step, the published code chained dense forward-mode Jacobians).
-
-The carry (:class:`PlannerState`, the solver's own state) is the whole solver state, so warm starting from the
-previous iterate continues the solve where it stopped; :meth:`UnrolledPlanner.reset` starts afresh (the solver's
-``begin``: duals 0, new optimiser states and new scales measured at the start). From a reset and with the same
-configuration, K steps here are the solver's first K iterations (``tests/runtime/e2e/test_gradients.py``).
+with ``v = (p, lambda, mu)`` and the optax step rules ``T``, so that the planned ``z_K(theta)`` is an ordinary
+differentiable function of the model's parameters and of the warm start. Each step is wrapped in ``jax.checkpoint``:
+reverse mode keeps only the carry of every step and recomputes one step's internals on the way back, so memory and
+time grow linearly in K and no Jacobian is ever formed (the published code chained dense forward-mode Jacobians).
+The carry is the whole solver state, so warm starting continues the solve where it stopped.
 
 The default primal rule is AMSGrad(0.1) with ``eps_root = 1e-16``: the solver's default rule, except that the square
 root of the second moment is never taken at an exact 0, where its derivative is infinite (a gradient component that
@@ -45,13 +40,9 @@ def default_planner_solver(**options: Any) -> Extragradient:
 
 
 class UnrolledPlanner:
-    """K differentiable extragradient steps on one NLP (built once per NLP and solver configuration).
-
-    Args:
-        nlp: the transcribed problem (of a model's ``LearnedSystem``: its ``data.params`` hold theta).
-        solver: an :class:`Extragradient` giving the step rules, penalty, bounds mode and scaling (its ``tol`` and
-            ``max_iter`` are unused: the number of steps is the caller's); default :func:`default_planner_solver`.
-    """
+    """K differentiable extragradient steps on one NLP (of a model's ``LearnedSystem``), with the step rules, penalty,
+    bounds mode and scaling of ``solver``, an :class:`Extragradient` (default :func:`default_planner_solver`; its
+    ``tol`` and ``max_iter`` are unused: the number of steps is the caller's)."""
 
     def __init__(self, nlp: NLP, solver: Extragradient | None = None):
         solver = default_planner_solver() if solver is None else solver

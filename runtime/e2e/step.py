@@ -1,20 +1,11 @@
 r"""One iteration of Algorithm 2 as one jit-compiled program: plan on the model, imitate the expert, update theta.
 
 With ``tr`` the learned leaves (the model's trainable parameters and any learned cost weights) and ``D(tr)`` the
-problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(tr.model)}``, x0):
-
-* unrolled: ``z = z_K(tr; s)``, K steps of :class:`~.planner.UnrolledPlanner` from the warm state ``s`` (a constant),
-  ``l(tr) = loss(z, D(tr))``, ``g = dl/dtr`` by reverse mode through the K steps; the next warm state is the K-th;
-* implicit: ``z = z*(tr)``, the extragradient solve to tolerance from the previous solution, ``g`` by the implicit
-  function theorem (:mod:`.implicit`); when the solve did not converge (or the KKT solve failed) the update is
-  skipped, or ``g`` comes from K unrolled steps started at the unconverged iterate, or the learner goes back to the
-  last parameters whose plan converged and takes that step again at half the length (``on_failure``: "backtrack");
-
-then ``tr <- tr + optax_update(g)``. ``loss`` is the mean over the grid's nodes of ``||u - u*||^2`` (controls),
-``||x - x*||^2`` (the model's planned states against the expert's), or their sum (the mode's weights are an input: one
-program serves all three). A step whose loss or gradient is not finite is never applied (and the learner stops). Every
-input is an array (the reset flag too), so the program is traced once per (model, NLP, configuration, shapes);
-``TRACES`` counts the traces.
+problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(tr.model)}``, x0), the plan is
+``z_K(tr; s)``, K planner steps from the warm state ``s`` (unrolled), or ``z*(tr)`` solved to tolerance (implicit,
+with the ``on_failure`` rule), and ``tr <- tr + optax_update(d loss(z, D(tr)) / d tr)`` (the contract: README.md in
+this folder, "One iteration"). Every input is an array (the reset flag and the loss's weights too), so the program is
+traced once per (model, NLP, configuration, shapes); ``TRACES`` counts the traces.
 """
 
 from __future__ import annotations
@@ -82,12 +73,8 @@ class Metrics(NamedTuple):
 
 
 class Program:
-    """The compiled iteration and the pieces around it, for one model, NLP, expert and configuration.
-
-    Args:
-        model: the sysid model; nlp: the transcription of ``model.as_system(theta)``.
-        config: the configuration; expert_controls, expert_states: on the NLP's grid.
-    """
+    """The compiled iteration and the pieces around it, for one model, NLP (the transcription of
+    ``model.as_system(theta)``), configuration and expert (on the NLP's grid)."""
 
     def __init__(self, model: Any, nlp: NLP, config: E2EConfig, expert_controls: Any, expert_states: Any):
         self.model, self.nlp, self.config = model, nlp, config

@@ -50,11 +50,9 @@ class E2EReport:
         history: ``[(iteration, imitation_loss, planner_kkt), ...]``, one row per iteration (``iteration`` counts
             from 0; the loss is that of the plan of the parameters before the iteration's update).
         snapshots: ``[(iteration, controls, states), ...]``, plans kept for the training figure.
-        counts: iterations per gradient source (``unrolled``, ``implicit``, ``fallback_unrolled``, ``skipped``,
-            ``backtracked``).
-        status: a :class:`~myriad.runtime.learn.loop.Stop`: ``COMPLETED``, ``NON_FINITE`` (the run stopped at a
-            non-finite loss or gradient) or ``STALLED`` (backtracking cut the step below ``MIN_STEP_SCALE``: the
-            planner could not solve any nearby model); the record holds its word.
+        counts: iterations per gradient source (``step.USED``).
+        status: ``Stop.COMPLETED``, ``NON_FINITE`` or ``STALLED`` (backtracking cut the step below
+            ``MIN_STEP_SCALE``: the planner could not solve any nearby model).
         compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
         init_seconds: the system-identification fit that started the run (``init="sysid"``), else 0.
     """

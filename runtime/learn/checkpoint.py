@@ -1,20 +1,13 @@
 """Checkpoints of a learner's run: parameters, optimiser state, PRNG key, step and the best-so-far, written atomically.
 
-One checkpoint is one ``.npz`` file (NumPy arrays only, read back with ``allow_pickle=False``) holding
+One checkpoint is one ``.npz`` file (NumPy arrays only, read back with ``allow_pickle=False``): the array leaves of
+the trees in ``jax.tree`` order, the key, the best value and the history, and ``meta``, a JSON string (identities,
+the leaves' key paths, shapes and dtypes, ``extra``). Its JSON copy beside it is for people and tools; the copy
+inside the ``.npz`` is the authoritative one (the pair cannot be replaced in one atomic step).
 
-* the array leaves of ``theta``, ``opt_state`` and ``best_theta`` in ``jax.tree`` order (``theta.0``, ...),
-* ``key`` (the raw PRNG key data), ``best_val`` and ``history`` ((H, 3): epoch, train loss, validation loss),
-* ``meta``: a JSON string (format, version, epoch, the dataset and configuration identities and descriptions, the
-  leaves' key paths, shapes and dtypes, and any ``extra`` integers the caller keeps),
-
-written to a temporary file and renamed over the target (``runtime/atomic.py``), so a reader sees the previous
-checkpoint or the complete new one. The same JSON is then written beside it as ``<name>.json`` for people and tools;
-the copy inside the ``.npz`` is the authoritative one (the pair cannot be replaced in one atomic step).
-
-Restoring needs templates, the pytrees a fresh start would build (``theta`` from ``init_params``, ``opt_state`` from
-``optimizer.init``): their structure is the one thing an ``.npz`` cannot hold without pickling code. Every stored
-leaf must match its template leaf's key path, shape and dtype. Floats round-trip bit for bit, so a resumed fit
-continues exactly where the interrupted one stopped.
+Restoring needs templates, the pytrees a fresh start would build: their structure is the one thing an ``.npz``
+cannot hold without pickling code. Floats round-trip bit for bit, so a resumed fit continues exactly where the
+interrupted one stopped.
 """
 
 from __future__ import annotations
@@ -70,21 +63,18 @@ def _leaves(tree: Any) -> list[tuple[str, np.ndarray]]:
 def save_checkpoint(path: str | os.PathLike, *, theta: Any, opt_state: Any, key: Any, epoch: int, best_theta: Any,
                     best_val: float, history: list, dataset_id: str, config_id: str, config: dict | None = None,
                     extra: dict | None = None) -> Path:
-    """Write a checkpoint to ``path`` (a ``.npz``) and its JSON copy to ``path.with_suffix(".json")``, atomically.
+    """Write a checkpoint to ``path`` (a ``.npz``, returned) and its JSON copy to ``path.with_suffix(".json")``,
+    atomically.
 
     Args:
         theta, opt_state, best_theta: pytrees; their array leaves are stored.
         key: a ``jax.random`` key (raw ``uint32`` data, or a typed key: its data is stored).
-        epoch: the number of completed epochs.
-        best_val: the best validation loss so far (may be inf).
-        history: ``[(epoch, train_loss, val_loss), ...]``.
+        epoch, best_val, history: completed epochs, the best validation loss so far (may be inf), and
+            ``[(epoch, train_loss, val_loss), ...]``.
         dataset_id, config_id: identities checked on load (the data's, e.g. :func:`.dataset.dataset_id`, and
             the run's, :mod:`.identity`).
         config: a JSON-ready description of the configuration, to say *what* differs when ``config_id`` does.
         extra: JSON-ready scalars the caller needs back (counters).
-
-    Returns:
-        The ``.npz`` path.
     """
     path = Path(path)
     if path.suffix != ".npz":
@@ -140,19 +130,12 @@ def _config_diff(old: dict | None, new: dict | None) -> str:
 
 def load_checkpoint(path: str | os.PathLike, template: Any, *, dataset_id: str | None = None,
                     config_id: str | None = None, config: dict | None = None) -> Checkpoint:
-    """Read a checkpoint written by :func:`save_checkpoint`.
+    """Read a checkpoint written by :func:`save_checkpoint` against ``template``, a mapping with ``"theta"`` and
+    ``"opt_state"``: fresh pytrees of the right structure (``best_theta`` is restored against ``"theta"``).
 
-    Args:
-        path: the ``.npz``.
-        template: a mapping with ``"theta"`` and ``"opt_state"``: fresh pytrees of the right structure
-            (``best_theta`` is restored against ``"theta"``).
-        dataset_id, config_id: when given, must equal the stored ones.
-        config: this run's configuration description, to name the fields that differ.
-
-    Raises:
-        FileNotFoundError: no such file.
-        CheckpointMismatch (a ValueError): another format or version, another dataset or configuration (the message
-            names both identities), or leaves whose key paths, shapes or dtypes differ from the template's.
+    ``dataset_id`` and ``config_id``, when given, must equal the stored ones (``config``, this run's description,
+    names the fields that differ); every stored leaf must match its template leaf's key path, shape and dtype. Else
+    :class:`CheckpointMismatch`; ``FileNotFoundError`` when there is no such file.
     """
     path = Path(path)
     if not path.is_file():

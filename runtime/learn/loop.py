@@ -1,15 +1,7 @@
 """The one training loop of every learner: steps, the non-finite stop, checkpoints on a schedule, a progress meter,
-and why it ended as a :class:`Stop`.
-
-A learner is an object holding its run's state (parameters, optimiser state, history, its best so far) with two
-methods the loop calls: ``step(index) -> Step`` (one epoch or iteration: take it, or say why not) and
-``save(done)`` (write a checkpoint after ``done`` steps). What a step is, what it records and when it is good enough
-stay the learner's own; the skeleton they shared (resume at ``start``, stop at a non-finite step without taking it,
-checkpoint every ``every`` steps, at the last one and at a successful stop, a bar) is written here once::
+and why it ended as a :class:`Stop` (the contract: README.md in this folder, "The loop").
 
     stop, message = train(learner, start=epoch, end=epochs, every=10, progress=None, exhausted=Stop.MAX_EPOCHS)
-
-A failure (:attr:`Stop.success` False) is never checkpointed: a resume replays from the last good checkpoint.
 """
 
 from __future__ import annotations

@@ -1,5 +1,7 @@
-"""Progress meters for the learners' loops (Diffrax's ``TqdmProgressMeter`` / ``NoProgressMeter`` idea): a tqdm bar
-on stderr when a person is watching, nothing otherwise, behind one interface so a loop never asks which.
+"""Progress meters for the learners' loops and the sweep (Diffrax's ``TqdmProgressMeter`` / ``NoProgressMeter`` idea):
+a tqdm bar on stderr when a person is watching, a plain line every few seconds when stderr is a log file or a pipe
+(a bar there is one line redrawn in place, which a log shows as nothing, or as garbage), behind one interface so a
+loop never asks which.
 
     with progress_meter(None, total=600, initial=0, desc="fit van_der_pol", unit="epoch") as meter:
         meter.update("train 1.2e-03")   # one step done, and what to show beside the bar (None: keep the last)
@@ -7,13 +9,19 @@ on stderr when a person is watching, nothing otherwise, behind one interface so 
 
 from __future__ import annotations
 
+import os
 import sys
+import time
+from typing import Callable
 
-__all__ = ["NoProgressMeter", "TqdmProgressMeter", "progress_meter"]
+__all__ = ["LineProgressMeter", "NoProgressMeter", "TqdmProgressMeter", "progress_meter"]
+
+# Seconds between two progress lines when stderr is not a terminal; $MYRIAD_PROGRESS_SECONDS overrides it.
+LINE_SECONDS = 10.0
 
 
 class NoProgressMeter:
-    """Shows nothing (a log file, a test, a sweep's worker)."""
+    """Shows nothing (a test, a sweep's worker, ``progress=False``)."""
 
     def update(self, postfix: str | None = None) -> None:
         """One step done; ``postfix`` is what to show beside the bar."""
@@ -45,11 +53,51 @@ class TqdmProgressMeter(NoProgressMeter):
         self._bar.close()
 
 
+class LineProgressMeter(NoProgressMeter):
+    """A line on stderr at the first step done ``seconds`` or more after the last line (or the start), e.g.
+    ``fit van_der_pol: epoch 120/600, train 3.2e-04, 12.3 s``, and one at the end of a run that printed any, so a
+    log shows where it stopped. ``clock`` is injectable (a test's fake clock)."""
+
+    def __init__(self, total: int, initial: int, desc: str, unit: str, seconds: float = LINE_SECONDS,
+                 clock: Callable[[], float] = time.monotonic):
+        self._total, self._done, self._desc, self._unit = total, initial, desc, unit
+        self._seconds, self._clock = seconds, clock
+        self._start = self._last = clock()
+        self._postfix, self._shown = None, None  # the last postfix; the count at the last line (None: no line yet)
+
+    def update(self, postfix: str | None = None) -> None:
+        self._done += 1
+        self._postfix = self._postfix if postfix is None else postfix
+        if self._clock() - self._last >= self._seconds:
+            self._line()
+
+    def _line(self) -> None:
+        self._last, self._shown = self._clock(), self._done
+        postfix = "" if self._postfix is None else f", {self._postfix}"
+        print(f"{self._desc}: {self._unit} {self._done}/{self._total}{postfix}, {self._last - self._start:.1f} s",
+              file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._shown is not None and self._shown != self._done:
+            self._line()
+
+
 def progress_meter(progress: bool | None, total: int, *, initial: int = 0, desc: str = "",
                    unit: str = "it") -> NoProgressMeter:
-    """A :class:`TqdmProgressMeter` when ``progress`` is True, or None and stderr is a terminal; else a
-    :class:`NoProgressMeter`."""
-    if not (sys.stderr.isatty() if progress is None else progress):
+    """``progress`` True: a :class:`TqdmProgressMeter`; False: a :class:`NoProgressMeter`; None: a bar when stderr
+    is a terminal, else a :class:`LineProgressMeter` (every ``$MYRIAD_PROGRESS_SECONDS``, default 10 s)."""
+    if progress is False:
         return NoProgressMeter()
-    return TqdmProgressMeter(total, initial, desc, unit)
+    if progress or sys.stderr.isatty():
+        return TqdmProgressMeter(total, initial, desc, unit)
+    return LineProgressMeter(total, initial, desc, unit, _line_seconds())
 
+
+def _line_seconds() -> float:
+    text = os.environ.get("MYRIAD_PROGRESS_SECONDS", "")
+    try:
+        return float(text) if text else LINE_SECONDS
+    except ValueError:  # a progress setting is not worth stopping a run for
+        print(f"myriad: warning: MYRIAD_PROGRESS_SECONDS={text!r} is not a number of seconds; using "
+              f"{LINE_SECONDS:g}", file=sys.stderr)
+        return LINE_SECONDS

@@ -12,10 +12,8 @@ smallest observed miss is kept (each candidate is observed once; the last one to
 plan it saw miss by more than the one it started from. A re-aimed plan that does not converge ends the loop with
 the best plan so far, and says so.
 
-It converges when successive plans move little, i.e. once the model is right near the plan, and not monotonically:
-measured on Pendulum after 6 rounds, observed misses 2.4e-2, 3.9e-2, 1.3e-2, 1.8e-2, 9.1e-4, 6.3e-6, 5.0e-2 (the plan
-kept: cost within 7.5e-4 of the optimum); it diverges on a model whose terminal sensitivities are wrong (Cart-Pole:
-0.39, 0.39, 1.35, 2.19), which the "smallest observed miss" rule absorbs (docs/notes/node-training.md, "Re-aiming").
+It converges once the model is right near the plan, not monotonically, and diverges on a model whose terminal
+sensitivities are wrong, which the "smallest observed miss" rule absorbs (docs/notes/node-training.md, "Re-aiming").
 """
 
 from __future__ import annotations
@@ -64,17 +62,12 @@ class Reaim:
 
 def reaim(model: Any, theta: Any, plan: Solution, sampling: Sampling, *, iterations: int, seed: int,
           transcription=None, solver=None, params: Any = None, tolerance: float = 1e-6) -> Reaim:
-    """Re-aim ``plan`` (a converged plan on ``model.as_system(theta)``) at most ``iterations`` times.
+    """Re-aim ``plan`` (a converged plan on ``model.as_system(theta)``) at most ``iterations`` times (each costs one
+    planning solve with ``transcription``, ``solver`` and ``params`` and one observed run).
 
     Args:
-        model, theta: the learned model and its parameters.
-        plan: the plan to start from.
         sampling: the dataset's sampling (its observation noise and integrator apply to the observed runs).
-        iterations: the most re-aimed plans (each costs one planning solve and one observed run).
         seed: the observed runs' noise draws derive from it.
-        transcription, solver: the planning setting.
-        params: the learned system's parameters for planning (``{"spec": ..., "model": theta}``, e.g. with learned
-            cost weights), None: the spec's and ``theta``.
         tolerance: stop once a plan's observed miss is at most this (absolute; about the planner's own feasibility
             tolerance on the model).
     """

@@ -13,7 +13,7 @@ import pytest
 from myriad.runtime.learn.identity import describe, digest, optimizer_identity
 from myriad.runtime.learn.loop import Step, Stop, check_run, train
 from myriad.runtime.learn.models import MODELS, AbstractModel, NeuralODE, Parametric, make_model, model_class
-from myriad.runtime.learn.progress import NoProgressMeter, TqdmProgressMeter, progress_meter
+from myriad.runtime.learn.progress import LineProgressMeter, NoProgressMeter, TqdmProgressMeter, progress_meter
 from myriad.runtime.loader import load
 
 
@@ -68,12 +68,13 @@ def test_a_stall_at_the_last_step_is_not_checkpointed_unless_due():
 
 def test_meters_and_argument_checks(capsys):
     assert type(progress_meter(False, 3)) is NoProgressMeter
-    assert type(progress_meter(None, 3)) is NoProgressMeter  # stderr is not a terminal under pytest
+    assert type(progress_meter(None, 3)) is LineProgressMeter  # stderr is not a terminal under pytest
     with progress_meter(True, 3, desc="bar", unit="epoch") as meter:
         assert isinstance(meter, TqdmProgressMeter)
         meter.update("loss 1")
         meter.update()
     assert "bar" in capsys.readouterr().err
+    capsys.readouterr()
     with pytest.raises(ValueError, match="resume=True needs a checkpoint_dir"):
         check_run("x", resume=True, checkpoint_dir=None, progress=None)
     with pytest.raises(ValueError, match="progress must be"):
@@ -129,3 +130,29 @@ def test_one_spelling_per_model_name_in_the_runtime():
     for name in ("sysid", "e2e"):
         model = next(a for a in commands[name]._actions if "--model" in a.option_strings)
         assert list(model.choices) == list(MODELS), name
+
+
+def test_without_a_terminal_the_meter_prints_a_line_every_so_many_seconds(capsys):
+    now = [100.0]
+    meter = LineProgressMeter(600, 2, "fit van_der_pol", "epoch", seconds=10.0, clock=lambda: now[0])
+    for t, postfix in ((104.0, "train 3.0e-01"), (109.9, None), (110.0, "train 2.0e-01"), (115.0, None),
+                       (125.0, "train 1.0e-01"), (126.0, None)):
+        now[0] = t
+        meter.update(postfix)
+    meter.close()  # the end, where it stopped: 8 of 600
+    assert capsys.readouterr().err.splitlines() == [
+        "fit van_der_pol: epoch 5/600, train 2.0e-01, 10.0 s",
+        "fit van_der_pol: epoch 7/600, train 1.0e-01, 25.0 s",
+        "fit van_der_pol: epoch 8/600, train 1.0e-01, 26.0 s",
+    ]
+    quiet = LineProgressMeter(3, 0, "short", "it", seconds=10.0, clock=lambda: 0.0)
+    quiet.update("loss 1")
+    quiet.close()  # a run shorter than the interval prints nothing, not even its end
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("value, seconds", [("2.5", 2.5), ("", 10.0), ("soon", 10.0)])
+def test_the_line_interval_is_set_by_the_environment(monkeypatch, capsys, value, seconds):
+    monkeypatch.setenv("MYRIAD_PROGRESS_SECONDS", value)
+    assert progress_meter(None, 3)._seconds == seconds
+    assert ("not a number of seconds" in capsys.readouterr().err) == (value == "soon")
