@@ -41,9 +41,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from myriad.runtime.loader import load
-from myriad.runtime.rl.env import Env, EnvOptions, play
+from myriad.runtime.rl.env import Env, play
 from myriad.runtime.rl.mpc import MPC, mismatched_params
-from myriad.runtime.rl.reference import ACTION_BOUNDS, baseline_costs, normalized_score, reference_env, reference_scores
+from myriad.runtime.rl.reference import baseline_costs, normalized_score, reference_env, reference_scores
 
 SYSTEMS = ["van_der_pol", "pendulum", "cancer_treatment", "mountain_car", "cartpole"]
 COLUMNS = ["open loop", "MPC", "MPC mismatch", "MPC noise", "PPO", "random"]
@@ -83,7 +83,7 @@ def train_ppo(name: str, total_steps: int, seed: int) -> tuple[float, float]:
     from myriad.runtime.rl.gymnax import GymnaxEnv
 
     system = load(name)
-    g = GymnaxEnv(Env(system, EnvOptions(action_bound=ACTION_BOUNDS.get(name))))  # actions in [-1, 1], float32
+    g = GymnaxEnv(Env(system))  # actions in [-1, 1], float32
     env = g.env
     algo = PPO.create(env=g, env_params=g.default_params, total_timesteps=total_steps, eval_freq=total_steps,
                       num_envs=64, num_steps=env.options.steps, num_epochs=4, num_minibatches=8,

@@ -127,7 +127,7 @@ def _gym_rows(system, env, params, x0, actions, repeats) -> list:
 
     N, B = actions.shape[:2]
     rows = []
-    gym_env = MyriadEnv(system, steps=N, action_bound=env.options.action_bound)
+    gym_env = MyriadEnv(system, steps=N)
     np_actions = np.asarray(actions, np.float32)
 
     def loop_gym():
@@ -137,7 +137,7 @@ def _gym_rows(system, env, params, x0, actions, repeats) -> list:
         return jnp.asarray(out[1])
 
     rows.append(("Gymnasium MyriadEnv.step (NumPy)", best_rate(loop_gym, N, repeats)))
-    vec = MyriadVectorEnv(system, B, params=params, x0=x0, steps=N, action_bound=env.options.action_bound)
+    vec = MyriadVectorEnv(system, B, params=params, x0=x0, steps=N)
 
     def loop_vec():
         vec.reset(seed=0)
@@ -168,7 +168,7 @@ def main() -> None:
 
     B, N = args.num_envs, args.steps
     system = load(args.system)
-    env = make_jax(system, steps=N, action_bound=2.0 if args.system == "simple_case" else None)
+    env = make_jax(system, steps=N)
     params, x0, batch = _envs(system, args)
     key = jax.random.PRNGKey(0)
     actions = jax.random.uniform(key, (N, B, env.action_size), minval=-1.0, maxval=1.0)

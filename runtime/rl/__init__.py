@@ -12,6 +12,7 @@ from .gym import MyriadEnv as MyriadEnv
 from .gym import MyriadVectorEnv as MyriadVectorEnv
 from .gym import env_id as env_id
 from .gym import make as make
+from .gym import register as register
 from .gym import register_all as _register_all
 from .reference import normalized_score as normalized_score
 from .reference import reference_scores as reference_scores
@@ -20,6 +21,6 @@ _register_all()
 
 __all__ = [
     "Env", "EnvOptions", "EnvState", "Episode", "make_jax", "play",
-    "MyriadEnv", "MyriadVectorEnv", "env_id", "make",
+    "MyriadEnv", "MyriadVectorEnv", "env_id", "make", "register",
     "normalized_score", "reference_scores",
 ]

@@ -56,7 +56,12 @@ from ..system import System
 from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows
 from ..transcriptions.nominal_scales import state_scale
 
-__all__ = ["EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
+__all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
+
+# The action bound of a shipped system whose control is unbounded, used where ``action_bound`` is not given: twice
+# the largest magnitude of its optimal control, rounded up (Simple Case: u* stays in [0.01, 1.00]), so the optimum
+# is inside the action space with room to explore past it.
+DEFAULT_ACTION_BOUNDS = {"simple_case": 2.0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,13 +148,20 @@ class Env:
         # An episode runs on the fixed horizon with the cost as reward: a free final time has no horizon to run on
         # (``system.horizon`` is only its guess) and the reward would not see path constraints.
         self.system.require_schema1_features("the RL environment")
+        default = DEFAULT_ACTION_BOUNDS.get(self.system.name)
+        if self.options.action_bound is None and default is not None:
+            object.__setattr__(self, "options", dataclasses.replace(self.options, action_bound=default))
+        if self.options.normalize_actions:
+            self.require_finite_controls("actions cannot be normalised to [-1, 1]", ", or normalize_actions=False "
+                                         "for actions in the control's own units (unclipped where unbounded)")
+
+    def require_finite_controls(self, why: str, alternative: str = "") -> None:
+        """Raise ``ValueError`` naming the controls without finite bounds (after ``action_bound``), if any."""
         lo, hi = self.control_bounds
         free = [n for n, a, b in zip(self.system.control_names, lo, hi) if not (np.isfinite(a) and np.isfinite(b))]
-        if free and self.options.normalize_actions:
-            raise ValueError(
-                f"{self.system.name}: control(s) {', '.join(free)} have no finite bounds, so actions cannot be "
-                f"normalised to [-1, 1]; pass action_bound=B to limit each unbounded side to B in magnitude, or "
-                f"normalize_actions=False for actions in the control's own units (unclipped where unbounded)")
+        if free:
+            raise ValueError(f"{self.system.name}: control(s) {', '.join(free)} have no finite bounds, so {why}; pass "
+                             f"action_bound=B to limit each unbounded side to B in magnitude{alternative}")
 
     # ---- sizes, bounds and data ------------------------------------------------------------------------------
     @property

@@ -23,6 +23,8 @@ marks the envs it is valid for).
 from __future__ import annotations
 
 import functools
+import os
+from pathlib import Path
 from typing import Any
 
 import gymnasium
@@ -39,7 +41,7 @@ from ..systems import NAMES
 from .env import Env, EnvOptions
 from .render import draw_traces
 
-__all__ = ["MyriadEnv", "MyriadVectorEnv", "make", "env_id", "register_all"]
+__all__ = ["MyriadEnv", "MyriadVectorEnv", "make", "env_id", "register", "register_all"]
 
 _F32_MAX = float(np.finfo(np.float32).max)
 
@@ -51,11 +53,7 @@ def env_id(name: str) -> str:
 
 def _core(system: System | str, options: dict) -> Env:
     env = Env(system if isinstance(system, System) else load(system), EnvOptions(**options))
-    lo, hi = env.action_bounds
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-        free = [n for n, a, b in zip(env.system.control_names, lo, hi) if not np.isfinite(a) or not np.isfinite(b)]
-        raise ValueError(f"{env.system.name}: control(s) {', '.join(free)} have no finite bounds, and a Gymnasium "
-                         f"action space needs them: pass action_bound=B to limit each unbounded side to B in magnitude")
+    env.require_finite_controls("a Gymnasium action space cannot hold them")
     return env
 
 
@@ -225,23 +223,39 @@ class MyriadVectorEnv(VectorEnv):
         return np.asarray(obs, np.float32), np.asarray(reward, np.float64), terminated, truncated, out
 
 
-def make(system: System | str, **options) -> MyriadEnv:
-    """A :class:`MyriadEnv` for any system: a shipped name, a spec path (compiled on the fly) or a system object.
+def make(system: System | str | os.PathLike, **options) -> MyriadEnv:
+    """A :class:`MyriadEnv` for any system (a shipped name, a peer's, a spec path or a system object), made by
+    ``gymnasium.make`` from its registered id (:func:`register`), so it has a ``spec`` to remake it from.
 
     ``options`` are :class:`MyriadEnv`'s keywords (``render_mode``, ``params``, ``x0``) and the
-    :class:`~myriad.runtime.rl.env.EnvOptions` fields. Not wrapped (no order enforcing or passive checker, unlike
-    ``gymnasium.make``).
+    :class:`~myriad.runtime.rl.env.EnvOptions` fields. Returned unwrapped (no order enforcing or passive checker).
     """
-    return MyriadEnv(system, **options)
+    return gymnasium.make(register(system), disable_env_checker=True, **options).unwrapped
+
+
+def _register(ident: str, system: System | str) -> str:
+    if ident not in gymnasium.registry:
+        gymnasium.register(id=ident, entry_point="myriad.runtime.rl.gym:MyriadEnv",
+                           vector_entry_point="myriad.runtime.rl.gym:MyriadVectorEnv", kwargs={"system": system})
+    return ident
+
+
+def register(system: System | str | os.PathLike) -> str:
+    """The Gymnasium id of any system, registered on first use (idempotent).
+
+    A shipped system is ``myriad/<Name>-v0``; any other is ``myriad-spec/<Name>-<hash>-v0``, ``<Name>`` its generated
+    class name and ``<hash>`` the first 8 hex digits of its spec's SHA-256, so an edited spec gets a new id. The id
+    makes the system from the spec's absolute path, the name given (a peer's) or the system object itself.
+    """
+    target = system if isinstance(system, System) else os.fspath(system)
+    loaded = system if isinstance(system, System) else load(target)
+    if loaded.name in NAMES and loaded == load(loaded.name):
+        return env_id(loaded.name)
+    if isinstance(target, str) and Path(target).is_file():
+        target = str(Path(target).resolve())
+    return _register(f"myriad-spec/{type(loaded).__name__}-{loaded.spec_sha256[:8]}-v0", target)
 
 
 def register_all() -> list[str]:
     """Register ``myriad/<Name>-v0`` for every shipped system (idempotent); returns the ids."""
-    ids = []
-    for name in NAMES:
-        ident = env_id(name)
-        if ident not in gymnasium.registry:
-            gymnasium.register(id=ident, entry_point="myriad.runtime.rl.gym:MyriadEnv",
-                               vector_entry_point="myriad.runtime.rl.gym:MyriadVectorEnv", kwargs={"system": name})
-        ids.append(ident)
-    return ids
+    return [_register(env_id(name), name) for name in NAMES]

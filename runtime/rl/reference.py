@@ -17,8 +17,8 @@ the final-value penalty), in minimisation form, so the three are measured alike:
 
 ``normalized_score(system, J) = 100 (J_random - J) / (J_random - J_optimal)``: 0 is the random policy, 100 the
 optimiser's open-loop controls; an agent can pass 100 (the env's problem, zero-order hold on Heun's grid, is not
-exactly the one the transcriptions solve). Simple Case's control is unbounded: its envs use ``action_bound`` 2
-(twice its optimal control's largest magnitude, rounded up), recorded in the file.
+exactly the one the transcriptions solve). Simple Case's control is unbounded: its envs use its default action bound
+(:data:`~myriad.runtime.rl.env.DEFAULT_ACTION_BOUNDS`), recorded in the file.
 """
 
 from __future__ import annotations
@@ -39,12 +39,11 @@ from ..system import System
 from ..systems import NAMES
 from .env import Env, EnvOptions, play
 
-__all__ = ["FORMAT", "ACTION_BOUNDS", "EPISODES", "SEED", "reference_env", "baseline_costs", "compute",
+__all__ = ["FORMAT", "EPISODES", "SEED", "reference_env", "baseline_costs", "compute",
            "reference_scores", "normalized_score", "stale"]
 
 FORMAT = 1  # of the JSON file; bump with a change of layout
 ENV_VERSION = 0  # the -v0 of the Gymnasium ids: bump both when the env's definition changes
-ACTION_BOUNDS = {"simple_case": 2.0}
 EPISODES = 100
 SEED = 0
 _FILE = "reference_scores.json"
@@ -52,7 +51,7 @@ _FILE = "reference_scores.json"
 
 def reference_env(system: System) -> Env:
     """The environment the scores are measured in: default options, controls in their own units."""
-    return Env(system, EnvOptions(normalize_actions=False, action_bound=ACTION_BOUNDS.get(system.name)))
+    return Env(system, EnvOptions(normalize_actions=False))
 
 
 def _control_batch(env: Env, optimal: np.ndarray | None) -> jnp.ndarray:
@@ -118,7 +117,7 @@ def compute(name: str, progress=None) -> dict[str, Any]:
     return {
         "spec_sha256": system.spec_sha256,
         "sense": system.sense,
-        "action_bound": ACTION_BOUNDS.get(name),
+        "action_bound": env.options.action_bound,
         "optimal": {
             "cost": scores["optimal"],
             "transcription": sol.transcription,
@@ -206,7 +205,7 @@ def stale(doc: dict[str, Any] | None = None, names=NAMES, rtol: float = 1e-9) ->
         if r is None:
             continue
         system = load(name)
-        if r["spec_sha256"] != system.spec_sha256 or r["action_bound"] != ACTION_BOUNDS.get(name):
+        if r["spec_sha256"] != system.spec_sha256 or r["action_bound"] != reference_env(system).options.action_bound:
             problems.append(f"{name}: spec or action bound changed")
             continue
         now = baseline_costs(system, r["optimal"]["controls"])

@@ -129,10 +129,12 @@ def test_actions_are_clipped_and_normalised_onto_the_control_bounds():
         assert float(env.control(jnp.array([a]))[0]) == pytest.approx(u, abs=1e-15)
     native = make_jax("van_der_pol", normalize_actions=False)
     assert float(native.control(jnp.array([2.0]))[0]) == 1.0 and float(native.control(jnp.array([0.3]))[0]) == 0.3
-    with pytest.raises(ValueError, match="control.*u.*no finite bounds.*action_bound"):
-        make_jax("simple_case")
-    bounded = make_jax("simple_case", action_bound=2.0)
-    assert float(bounded.control(jnp.array([1.0]))[0]) == 2.0
+    with pytest.raises(ValueError, match="double_integrator: control.*u.*no finite bounds.*action_bound"):
+        make_jax(ROOT / "tests/runtime/specs/double_integrator.yaml")
+    # Simple Case's unbounded control has a default bound, 2 (twice its optimal control's largest magnitude).
+    assert make_jax("simple_case").options == EnvOptions(action_bound=2.0)
+    assert float(make_jax("simple_case").control(jnp.array([1.0]))[0]) == 2.0
+    assert float(make_jax("simple_case", action_bound=5.0).control(jnp.array([-1.0]))[0]) == -5.0
 
 
 def test_a_spec_that_does_not_ship_is_an_environment():

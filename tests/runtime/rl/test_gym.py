@@ -14,30 +14,68 @@ from myriad.runtime.systems import NAMES
 
 from ...helpers import ROOT
 
-OPTIONS = {"simple_case": {"action_bound": 2.0}}  # its control is unbounded
+
+def _check_through_make(ident, **options):
+    """Gymnasium's checks as a user meets them: ``gymnasium.make`` (the passive checker on), a few steps, a
+    render, then ``check_env`` on the unwrapped env (it remakes the env from its spec for the render modes)."""
+    env = gymnasium.make(ident, render_mode="rgb_array", **options)
+    assert env.spec.id == ident and env.unwrapped.spec.id == ident
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step(env.action_space.sample())
+    assert env.render().dtype == np.uint8
+    check_env(env.unwrapped)
+    return env
 
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("error")
 @pytest.mark.parametrize("name", NAMES)
 def test_every_shipped_system_passes_the_gymnasium_checker(name):
-    env = gymnasium.make(rl.env_id(name), **OPTIONS.get(name, {}))
-    check_env(env.unwrapped)  # the unwrapped env (the checker warns about wrappers), remade by id for render
+    env = _check_through_make(rl.env_id(name))  # no options: Simple Case's default action bound included
     assert env.observation_space.dtype == np.float32 and env.action_space.dtype == np.float32
     assert env.observation_space.shape == (load(name).n_states + 1,)
 
 
 @pytest.mark.filterwarnings("error")
-def test_a_spec_that_does_not_ship_passes_the_checker():
+def test_simple_case_and_a_spec_that_does_not_ship_pass_the_checker():
+    assert _check_through_make("myriad/SimpleCase-v0").unwrapped.core.options.action_bound == 2.0
     path = ROOT / "tests/runtime/specs/double_integrator.yaml"  # unbounded states and control
-    gymnasium.register("test/DoubleIntegrator-v0", entry_point="myriad.runtime.rl.gym:MyriadEnv",
-                       kwargs={"system": str(path), "action_bound": 20.0})
-    try:
-        check_env(gymnasium.make("test/DoubleIntegrator-v0").unwrapped)
-    finally:
-        del gymnasium.registry["test/DoubleIntegrator-v0"]
     env = rl.make(path, action_bound=20.0, render_mode="rgb_array")
     assert env.render_mode == "rgb_array" and env.system.name == "double_integrator"
+    assert env.spec.id == f"myriad-spec/DoubleIntegrator-{load(path).spec_sha256[:8]}-v0"
+    assert env.spec.kwargs == {"system": str(path.resolve()), "action_bound": 20.0, "render_mode": "rgb_array"}
+    check_env(env)
+    _check_through_make(env.spec.id, action_bound=20.0)
+
+
+@pytest.mark.filterwarnings("error")
+def test_any_spec_is_registered_by_make_so_gymnasium_builds_it(tmp_path):
+    copy = tmp_path / "simple_case.yaml"  # a copy of a shipped spec: its own id, the shipped default action bound
+    copy.write_text((ROOT / "specs/simple_case.yaml").read_text())
+    env = rl.make(copy, steps=20)
+    ident = env.spec.id
+    assert ident == f"myriad-spec/SimpleCase-{load('simple_case').spec_sha256[:8]}-v0" and ident in gymnasium.registry
+    assert rl.register(copy) == ident and rl.register(str(copy)) == ident  # idempotent
+    assert rl.register("simple_case") == rl.register(load("simple_case")) == "myriad/SimpleCase-v0"
+    np.testing.assert_array_equal(env.core.control_bounds, ([-2.0], [2.0]))
+    check_env(env)
+    # The same problem from its id, single and vectorised, step for step.
+    single = gymnasium.make(ident, steps=20)
+    envs = gymnasium.make_vec(ident, num_envs=2, vectorization_mode="vector_entry_point", steps=20)
+    assert isinstance(envs, MyriadVectorEnv) and envs.spec.id == ident
+    obs, _ = envs.reset(seed=0)
+    np.testing.assert_array_equal(single.reset(seed=0)[0], obs[0])
+    for a in np.linspace(-1.0, 1.0, 20):
+        obs, reward, terminated, *_ = envs.step(np.full((2, 1), a, np.float32))
+        _, r, done, *_ = single.step(np.float32([a]))
+        np.testing.assert_allclose(reward, [r, r], rtol=1e-12)
+    assert done and terminated.all()
+    # A peer problem by name, with options.
+    peer = rl.make("peers/catalyst_mixing", steps=10)
+    assert peer.spec.id.startswith("myriad-spec/CatalystMixing-")
+    assert peer.spec.kwargs == {"system": "peers/catalyst_mixing", "steps": 10}
+    check_env(peer)
 
 
 def test_ids_are_the_generated_class_names_and_all_are_registered():
@@ -48,13 +86,15 @@ def test_ids_are_the_generated_class_names_and_all_are_registered():
     assert rl.env_id("van_der_pol") == "myriad/VanDerPol-v0"
 
 
-def test_an_unbounded_control_needs_an_explicit_action_bound():
-    with pytest.raises(ValueError, match="simple_case.*control.*u.*action_bound"):
-        gymnasium.make("myriad/SimpleCase-v0")
+def test_an_unbounded_control_needs_an_action_bound_and_simple_case_has_a_default():
+    path = ROOT / "tests/runtime/specs/double_integrator.yaml"
+    with pytest.raises(ValueError, match="double_integrator.*control.*u.*action_bound"):
+        rl.make(path)
     with pytest.raises(ValueError, match="action_bound"):
-        rl.make("simple_case", normalize_actions=False)
-    env = rl.make("simple_case", action_bound=2.0, normalize_actions=False)
-    np.testing.assert_array_equal(env.action_space.low, [-2.0])
+        rl.make(path, normalize_actions=False)
+    np.testing.assert_array_equal(rl.make("simple_case", normalize_actions=False).action_space.low, [-2.0])
+    env = rl.make("simple_case", action_bound=5.0, normalize_actions=False)
+    np.testing.assert_array_equal(env.action_space.high, [5.0])
 
 
 def test_spaces_come_from_the_bounds_and_rewards_from_the_core():
