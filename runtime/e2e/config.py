@@ -37,7 +37,8 @@ class E2EConfig:
             converged solve (``Implicit(fallback_steps=K)``: K of the unrolled fallback, ``on_failure="unrolled"``);
             K = None is 10 for a parametric model, 5 for a Neural ODE, as published. A name (``"unrolled"``,
             ``"implicit"``) is read as that adjoint with the default K.
-        iterations: the most outer iterations (one optimiser update each).
+        iterations: the most outer iterations (one optimiser update each); None: 1200 for a parametric model, 600
+            for a Neural ODE.
         optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
             learned cost weights together).
         reset_every: re-start the planner from the transcription's initial guess (duals 0) every this many
@@ -82,7 +83,7 @@ class E2EConfig:
 
     model: str = "parametric"
     adjoint: Unrolled | Implicit = Unrolled()
-    iterations: int = 600
+    iterations: int | None = None
     optimizer: Any = 1e-2
     reset_every: int | None = 1000
     loss: str = "controls"
@@ -109,8 +110,9 @@ class E2EConfig:
         if adj.unroll is None:
             adj = adj.with_unroll(_REGISTRY[self.model].default_unroll)
         object.__setattr__(self, "adjoint", adj)
-        if self.reaim is None:
-            object.__setattr__(self, "reaim", _REGISTRY[self.model].default_reaim)
+        for name in ("reaim", "iterations"):  # None: the model's default
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, getattr(_REGISTRY[self.model], f"default_{name}"))
         for name, low, optional in (("iterations", 1, False), ("reset_every", 1, True),
                                     ("checkpoint_every", 1, True), ("snapshot_every", 1, True), ("seed", 0, False),
                                     ("reaim", 0, False)):

@@ -67,6 +67,7 @@ class AbstractModel(abc.ABC):
     default_polish: ClassVar[bool] = False  # system identification: an L-BFGS polish after each Adam fit
     default_reaim: ClassVar[int] = 0  # re-aims of the judged plan from observed true runs
     default_unroll: ClassVar[int] = 10  # end-to-end learning: planner steps per iteration
+    default_iterations: ClassVar[int] = 600  # end-to-end learning: outer iterations (optimiser updates)
 
     def __post_init__(self):
         if not isinstance(self.system, System):

@@ -10,6 +10,7 @@ import json
 import optax
 import pytest
 
+from myriad.runtime.e2e.config import E2EConfig
 from myriad.runtime.learn.identity import describe, digest, optimizer_identity
 from myriad.runtime.learn.loop import Step, Stop, check_run, train
 from myriad.runtime.learn.models import MODELS, AbstractModel, NeuralODE, Parametric, make_model, model_class
@@ -88,6 +89,11 @@ def test_one_registry_of_model_names_with_the_defaults_on_the_classes():
         assert cls.default_method in ("least_squares", "adam") and cls.default_rounds >= 1
     assert (Parametric.default_unroll, NeuralODE.default_unroll) == (10, 5)
     assert (Parametric.default_reaim, NeuralODE.default_reaim) == (0, 6)
+    assert (Parametric.default_iterations, NeuralODE.default_iterations) == (1200, 600)
+    # None takes the model's default; iterations is not part of a run's identity (a resume may change it)
+    assert E2EConfig().iterations == 1200 and E2EConfig(model="node").iterations == 600
+    assert E2EConfig(iterations=5).iterations == 5
+    assert E2EConfig().identity("x") == E2EConfig(iterations=600).identity("x")
     with pytest.raises(ValueError, match="unknown model 'neural_ode'; expected one of \\('parametric', 'node'\\)"):
         model_class("neural_ode", "E2EConfig")
     system = load("cancer_treatment")
