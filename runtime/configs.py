@@ -179,7 +179,7 @@ def build(cls: type, values: Mapping[str, Any], base: Any = None) -> Any:
         else:
             flat[key] = value
     for head, sub in nested.items():
-        start = flat.get(head, getattr(base, head) if base is not None else _default(cls, head))
+        start = flat.get(head, getattr(base, head) if base is not None else defaults(cls)[head])
         try:
             flat[head] = _nested(hints[head], start, sub)
         except FieldError as exc:  # named by its dotted key, which the commands spell `--set head.name`
@@ -208,11 +208,6 @@ def _check_kind(name: str, hint: Any, value: Any) -> None:
     words = [w for k in _dataclasses_of(hint) if (w := _word(k))]
     raise FieldError(f"{name} expects a JSON object of its fields{' or one of ' + ', '.join(words) if words else ''}, "
                      f"got {value!r}", name)
-
-
-def _default(cls: type, name: str) -> Any:
-    f = next(f for f in dataclasses.fields(cls) if f.name == name)
-    return f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
 
 
 def _nested(hint: Any, start: Any, values: dict[str, Any]) -> Any:
@@ -293,7 +288,8 @@ def to_json(value: Any, skip: tuple[str, ...] = ()) -> Any:
 
 def defaults(cls: type) -> dict[str, Any]:
     """Every field's default."""
-    return {f.name: _default(cls, f.name) for f in dataclasses.fields(cls) if f.init}
+    return {f.name: f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+            for f in dataclasses.fields(cls) if f.init}
 
 
 def usage_message(exc: Exception, cls: type, spelled: Mapping[str, tuple[str, ...]] | None = None) -> str:

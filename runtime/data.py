@@ -61,7 +61,6 @@ def default_data(system: System, params: dict | None = None, x0: Any = None) -> 
     """The system's problem data, with some parameters and/or the initial state replaced.
 
     Args:
-        system: the system.
         params: parameter values; missing names take the spec's defaults.
         x0: the initial state; defaults to ``system.x0``.
 
@@ -85,7 +84,6 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     """A batch of problem data with a leading batch axis on every leaf.
 
     Args:
-        system: the system.
         params: arrays of shape (B,) per parameter; names not given keep the spec's value.
         x0: (B, n_states) initial states, or None for the spec's.
 
@@ -101,12 +99,11 @@ def batch_data(system: System, params: dict | None = None, x0: Any = None) -> Pr
     if len(sizes) != 1:
         raise ValueError(f"a batch needs one batch size across params and x0, got {sorted(sizes) or 'none'}")
     (batch,) = sizes
-    dtype = _dtype()
     base = default_data(system)
     _check(system, params, base.params, x0, batch=(batch,))
     p = jax.tree.map(lambda a: jnp.broadcast_to(a, (batch, *jnp.shape(a))), base.params)
-    p.update({k: _leaves(v, dtype) for k, v in params.items()})
-    xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, dtype)
+    p.update(params)
+    xs = jnp.broadcast_to(base.x0, (batch, system.n_states)) if x0 is None else jnp.asarray(x0, _dtype())
     return ProblemData(params=p, x0=xs)
 
 

@@ -60,7 +60,9 @@ def load(target: str | os.PathLike) -> System:
     if text in _registry.MODULES and not text.endswith((".yaml", ".yml")):
         return _registry.get(text)
     if text.startswith(PEER_PREFIX) and not path.is_file():
-        return _peer(text[len(PEER_PREFIX):])
+        from .systems import peers
+
+        return peers.get(text[len(PEER_PREFIX):])
     from myriad.compiler import compile_file  # the compiler (sympy) is only needed for specs loaded by path
 
     raw = path.read_bytes()
@@ -82,16 +84,6 @@ def load(target: str | os.PathLike) -> System:
     spec.loader.exec_module(module)
     _loaded[key] = module.SYSTEM
     return module.SYSTEM
-
-
-def _peer(name: str) -> System:
-    from .systems import peers
-
-    if name not in peers.NAMES:
-        close = difflib.get_close_matches(name, peers.NAMES, n=3)
-        hint = f"did you mean {' or '.join(PEER_PREFIX + n for n in close)}? " if close else ""
-        raise KeyError(f"unknown peer problem {name!r}; {hint}the peer collection: {', '.join(peers.NAMES)}")
-    return peers.get(name)
 
 
 def _names() -> dict[str, str]:
@@ -118,7 +110,10 @@ def _resolve_name(text: str) -> str:
         return next(iter(folded[text.lower()]))
     is_path = text.endswith((".yaml", ".yml")) or os.sep in text or bool(os.altsep and os.altsep in text)
     if text.startswith(PEER_PREFIX) and not text.endswith((".yaml", ".yml")):
-        return text  # _peer refuses it with the collection's names
+        name, peers = text[len(PEER_PREFIX):], [n[len(PEER_PREFIX):] for n in names if n.startswith(PEER_PREFIX)]
+        close = difflib.get_close_matches(name, peers, n=3)
+        hint = f"did you mean {' or '.join(PEER_PREFIX + n for n in close)}? " if close else ""
+        raise KeyError(f"unknown peer problem {name!r}; {hint}the peer collection: {', '.join(peers)}")
     if is_path:
         raise KeyError(f"file not found: {text}")
     close = difflib.get_close_matches(text, [n for n in names if not n.startswith(PEER_PREFIX)], n=3)

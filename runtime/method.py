@@ -50,7 +50,6 @@ class AbstractMethod(abc.ABC):
         """Solve one problem (not re-simulated; :func:`~myriad.runtime.solve.solve` does that).
 
         Args:
-            system: the system.
             solver: the solver object, or None for this method's default; a method that takes no solver refuses one.
             data: the problem data.
             z0: a starting point in this method's variables, or None for its default.

@@ -51,16 +51,14 @@ def _label(name: str, description: str, units: str) -> str:
 
 
 def plot_solution(solution, path: str | os.PathLike, system=None) -> str:
-    """Write one panel per state and per control (controls drawn as the piecewise-linear signal they are).
+    """Write one panel per state and per control (controls drawn as the piecewise-linear signal they are); the path
+    written.
 
     Args:
         solution: a :class:`~myriad.runtime.solve.Solution` (anything with ``times``, ``states``, ``controls``,
             ``system``, ``cost``, ``transcription``, ``solver`` and ``converged``).
         path: the PNG to write.
         system: the system; looked up by ``solution.system`` when omitted.
-
-    Returns:
-        The path written.
     """
     plt = pyplot()
     if system is None:

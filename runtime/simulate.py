@@ -59,14 +59,10 @@ def simulate(
     "re-simulated" evaluation that ``solve()`` and the bench report separately. The two must never be mixed.
 
     Args:
-        system: the system.
         controls: (N + 1, m) control values at t_k = k T / N (a 1-D array is accepted when m = 1).
         params: parameter values (default: the spec's); a partial dict overrides only the names it has.
         x0: initial state (default: the spec's).
         integrator: the one-step method.
-
-    Returns:
-        A :class:`Simulation`.
     """
     controls = jnp.asarray(controls)
     if not jnp.issubdtype(controls.dtype, jnp.floating):

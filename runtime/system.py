@@ -163,14 +163,8 @@ class System:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Initial state and bounds as float64 NumPy arrays (infinite bounds stay infinite)."""
-        f = lambda v: np.asarray(v, dtype=np.float64)  # noqa: E731
-        return {
-            "x0": f(self.x0),
-            "x_lower": f(self.x_lower),
-            "x_upper": f(self.x_upper),
-            "u_lower": f(self.u_lower),
-            "u_upper": f(self.u_upper),
-        }
+        names = ("x0", "x_lower", "x_upper", "u_lower", "u_upper")
+        return {k: np.asarray(getattr(self, k), dtype=np.float64) for k in names}
 
     # ---- parameters as a pytree ----------------------------------------------------------------------------
     def default_params(self, dtype: Any = None) -> dict[str, jnp.ndarray]:
@@ -178,13 +172,6 @@ class System:
         # Not cached: called inside a trace these are the trace's own values, and arrays kept from one trace would
         # be closed over by the next program as hidden arguments (which a stored program does not take).
         return {k: jnp.asarray(v, dtype=dtype) for k, v in zip(self.param_names, self.param_values)}
-
-    def guess_params(self, dtype: Any = None) -> dict[str, jnp.ndarray]:
-        """Parameters with every learnable one replaced by its starting guess (system identification)."""
-        p = self.default_params(dtype)
-        for k, g in zip(self.learnable, self.learnable_guesses):
-            p[k] = jnp.asarray(g, dtype=dtype)
-        return p
 
     # ---- compiled functions: every generated subclass defines each as a static method ---------------------------
     # (x, u, t, p) are a state (n_states,), a control (n_controls,), the time and the parameter pytree; every cost and
