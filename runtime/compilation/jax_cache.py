@@ -6,7 +6,7 @@ it is safe to delete at any time (the next compilation refills it). ``MYRIAD_JAX
 empty value) turns it off, as ``myriad --no-cache`` does.
 
 Its subfolder ``programs/`` holds the traced programs themselves (:mod:`.programs`), so that a second
-process skips Python tracing too, which was most of a second ``myriad bench --published-only`` (23 s -> 8-10 s).
+process skips Python tracing too.
 """
 
 from __future__ import annotations

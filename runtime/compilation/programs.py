@@ -1,9 +1,8 @@
 """Traced programs kept on disk (``jax.export``), so that a second process skips Python tracing as well as XLA.
 
 JAX's persistent compilation cache (:mod:`.jax_cache`) saves XLA's work, but its key is the lowered program, so every
-process still traces and lowers each program first. For a table of 18 solves that tracing was most of a second run
-(the ``myriad bench --published-only`` profile: ~80 % of 23 s in ``trace_to_jaxpr`` and lowering, 1.6 s reading
-executables back). This store keeps each traced program as a serialised :class:`jax.export.Exported`; a later process
+process still traces and lowers each program first, most of a second ``myriad bench --published-only``. This store
+keeps each traced program as a serialised :class:`jax.export.Exported`; a later process
 deserialises it and compiles ``jax.jit(exported.call)`` (an executable the compilation cache then has too), the
 first process compiles the same thing, so both ask the compilation cache for the same key.
 
@@ -43,12 +42,8 @@ _FOLDER: Path | None = None
 _TRACED_LIBRARIES = ("jax", "jaxlib", "numpy", "diffrax", "equinox", "lineax", "optimistix")
 
 
-# XLA's lowest backend (LLVM) optimisation: for programs that run once or for one solve, where compiling is most of the
-# time. Measured on the 2-core AMD EPYC, `myriad bench --published-only --jobs 1`, empty cache: 72.8 s of CPU at the
-# default level, 51.9 s at level 0; the 18 solves themselves 1.58 s against 1.75 s. Without XLA's CPU fusion emitters
-# (fusions emitted by the older loop emitter): Cart-Pole, HIV, Mountain Car and Bacteria's rows, empty cache, three
-# interleaved runs (2026-12-04): 11.3-14.3 s of CPU at level 0 alone, 7.5-7.8 s without them; solves 0.41-0.55 s
-# against 0.49-0.51 s, the same costs.
+# XLA's lowest backend (LLVM) optimisation, without its CPU fusion emitters: for programs that run once or for one
+# solve, where compiling is most of the time (measurements: docs/notes/2026-12-05-benchmark-history.md).
 QUICK = {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 _COMPILER_OPTIONS: dict[str, Any] | None = None
 

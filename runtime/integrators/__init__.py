@@ -6,13 +6,13 @@ Look one up by name with ``INTEGRATORS["rk4"]()``; see README.md in this folder 
 from .adaptive import Adaptive as Adaptive
 from .base import AbstractIntegrator as AbstractIntegrator
 from .dormand_prince import DormandPrince as DormandPrince
-from .euler import Euler as Euler
-from .heun import Heun as Heun
-from .midpoint import Midpoint as Midpoint
-from .rk4 import RK4 as RK4
 from .rollout import rollout as rollout
 from .rollout import rollout_with_cost as rollout_with_cost
 from .rollout import with_running_cost as with_running_cost
+from .runge_kutta import RK4 as RK4
+from .runge_kutta import Euler as Euler
+from .runge_kutta import Heun as Heun
+from .runge_kutta import Midpoint as Midpoint
 
 # Name -> class, for the CLI. Every concrete integrator must be here (a test checks).
 INTEGRATORS: dict[str, type[AbstractIntegrator]] = {

@@ -1,15 +1,9 @@
 r"""Dormand-Prince 5(4) with step-size control, for evaluation: the re-simulation every solve reports.
 
-Why not :class:`~myriad.runtime.integrators.adaptive.Adaptive` (diffrax) there: every solve re-simulates its controls
-once, so that program is compiled once per system and run once, and on a first run (empty compilation cache) its
-compile time is what counts. ``diffrax.diffeqsolve`` is general (reverse-mode adjoints, dense output, events, any
-solver and controller), and the program it traces and compiles is large. Measured on the 2-core AMD EPYC
-(another job running; ``python bench/resimulation.py``), the re-simulation of each of the 18 shipped systems'
-published-setting controls (100 intervals), traced and compiled: diffrax's Tsit5 1.55-2.56 s (median 1.9), this
-0.73-1.21 s (median 0.85); a run 0.4-1.3 ms against 0.3-0.6 ms; costs equal to 1.0e-8 relative (Pendulum; most to
-1e-10), both at rtol 1e-8. What it gives up:
-reverse-mode gradients (``lax.while_loop`` has none; forward mode works), so anything differentiated in reverse mode
-keeps ``Adaptive``.
+Why not :class:`~myriad.runtime.integrators.adaptive.Adaptive` (diffrax) there: that program is compiled once per
+system and run once, so its compile time is what counts, and diffrax's general ``diffeqsolve`` compiles in about
+twice the time (``python bench/resimulation.py``). What it gives up: reverse-mode gradients (``lax.while_loop`` has
+none; forward mode works), so anything differentiated in reverse mode keeps ``Adaptive``.
 
 One call of :meth:`DormandPrince.step` integrates ``x' = f(x, u(s), s)`` over one interval ``[t, t + h]`` with the
 control linearly interpolated, restarting at every node as ``Adaptive`` does (a kink in the control between two
@@ -58,9 +52,8 @@ def _combine(coefficients, ks):
 
 @dataclasses.dataclass(frozen=True)
 class DormandPrince(AbstractIntegrator):
-    """Dormand-Prince 5(4), step-size controlled, restarted at every node; forward evaluation only (see the module
-    docstring). A step whose interval does not finish (``max_steps`` reached, a non-finite value) returns NaN, so a
-    failure shows in the result, also under ``vmap``.
+    """Dormand-Prince 5(4) (see the module docstring). A step whose interval does not finish (``max_steps`` reached, a
+    non-finite value) returns NaN, so a failure shows in the result, also under ``vmap``.
 
     Attributes:
         rtol, atol: relative and absolute tolerances of the local error (rms norm over the state).

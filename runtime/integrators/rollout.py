@@ -1,4 +1,4 @@
-"""Rollouts: many steps of one integrator over a uniform grid, with ``lax.scan``."""
+"""Rollouts: many steps of one integrator over a grid, with ``lax.scan``."""
 
 from __future__ import annotations
 
@@ -21,17 +21,15 @@ def rollout(
     controls: Any,
     checkpoint: bool = False,
 ) -> Any:
-    """Integrate x' = f(x, u, t) from x(t0) = x0 over the grid t_k = t0 + k h, k = 0..N.
-
-    The control is piecewise linear between its node values: on [t_k, t_k + h] it runs from controls[k] to
-    controls[k + 1].
+    """Integrate x' = f(x, u, t) from x(t0) = x0 over the grid t_k = t0 + k h, k = 0..N, one step per interval, the
+    control linear from controls[k] to controls[k + 1] on interval k.
 
     Args:
         integrator: the one-step method.
         f: the vector field f(x, u, t).
         x0: initial state, shape (n,).
-        t0: initial time (scalar).
-        h: step size (scalar; negative integrates backwards in time).
+        t0: initial time (scalar); with ``h`` None, the N + 1 node times themselves (any spacing).
+        h: step size (scalar; negative integrates backwards in time), or None (see ``t0``).
         controls: control values at the N + 1 nodes, shape (N + 1, m).
         checkpoint: differentiate with rematerialisation: reverse mode keeps only the state at each node and
             recomputes the step's intermediates on the way back. Values are unchanged; derivatives are the same up
@@ -42,19 +40,24 @@ def rollout(
     """
     x0 = jnp.asarray(x0)
     controls = jnp.asarray(controls)
-    n_steps = controls.shape[0] - 1
-    # t_k = t0 + k h rather than a running sum, so rounding does not accumulate along the grid.
-    ks = jnp.arange(n_steps, dtype=x0.dtype)
+    if h is None:
+        times = jnp.asarray(t0)
+        steps = (times[:-1], times[1:] - times[:-1])
+        at = lambda t, dt: (t, dt)  # noqa: E731
+    else:
+        # t_k = t0 + k h rather than a running sum, so rounding does not accumulate along the grid.
+        steps = (jnp.arange(controls.shape[0] - 1, dtype=x0.dtype),)
+        at = lambda k: (t0 + k * h, h)  # noqa: E731
 
     def body(x, inputs):
-        k, u0, u1 = inputs
-        x_next = integrator.step(f, x, t0 + k * h, h, u0, u1)
+        *when, u0, u1 = inputs
+        x_next = integrator.step(f, x, *at(*when), u0, u1)
         return x_next, x_next
 
     if checkpoint:
         # prevent_cse=False: inside a scan the loop already keeps XLA from merging the recomputation away.
         body = jax.checkpoint(body, prevent_cse=False, policy=jax.checkpoint_policies.nothing_saveable)
-    _, xs = jax.lax.scan(body, x0, (ks, controls[:-1], controls[1:]))
+    _, xs = jax.lax.scan(body, x0, (*steps, controls[:-1], controls[1:]))
     return jnp.concatenate([x0[None], xs], axis=0)
 
 
@@ -68,22 +71,12 @@ def rollout_with_cost(
     controls: Any,
     checkpoint: bool = False,
 ) -> tuple[Any, Any]:
-    """A rollout of the state augmented with the accumulated running cost.
-
-    The augmented system is
-
-        d/dt [x, c] = [f(x, u, t), L(x, u, t)],   c(t0) = 0,
-
-    integrated by the same ``integrator``, so the cost carries exactly the discretisation error of the states. With
-    Heun on the 100-step grid this is how the published setting measures cost.
-
-    Args:
-        integrator, f, x0, t0, h, controls, checkpoint: as in :func:`rollout`.
-        running_cost: L(x, u, t) -> scalar.
+    """:func:`rollout` of the state augmented with the running cost, d/dt [x, c] = [f(x, u, t), L(x, u, t)],
+    c(t0) = 0, by the same ``integrator``, so the cost carries exactly the discretisation error of the states (with
+    Heun on the 100-step grid, how the published setting measures cost).
 
     Returns:
-        ``(states, cost)``: states at the nodes, shape (N + 1, n), and the accumulated integral int_{t0}^{t_k} L dt
-        at each node, shape (N + 1,) (so ``cost[-1]`` is the whole integral).
+        ``(states (N + 1, n), cost (N + 1,))``: ``cost[k]`` is the integral of L from t0 to t_k.
     """
     x0 = jnp.asarray(x0)
     n = x0.shape[0]

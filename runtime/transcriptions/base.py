@@ -14,6 +14,7 @@ import numpy as np
 
 from ..compilation import CompiledFunction, program_key, programs
 from ..data import ProblemData
+from ..integrators import rollout, rollout_with_cost
 from ..method import AbstractMethod
 from ..nlp import NLP
 from ..solution import Solution
@@ -21,9 +22,18 @@ from ..solvers import SOLVERS, AbstractNLPSolver, AbstractPureSolver, Extragradi
 from ..solvers.base import unstack
 from ..system import System
 from .error import REFERENCE_SUBSTEPS, estimate, interval_errors
-from .grid import check_grid, grid_argument
+from .grid import check_grid, free_node_times, grid_argument, node_times
+from .nlp_parts import (
+    final_time_variable,
+    final_value_rows,
+    guess_controls,
+    guess_states,
+    node_state_bounds,
+    path_bounds,
+)
+from .nominal_scales import control_scale, state_scale
 
-__all__ = ["AbstractTranscription", "TrajectoryFn", "path_violation", "sample_final_time", "transcribe"]
+__all__ = ["AbstractTranscription", "Transcribed", "TrajectoryFn", "path_violation", "transcribe"]
 
 # t (K,) -> values (K, d): a trajectory evaluated at an array of times.
 TrajectoryFn = Callable[[np.ndarray], Any]
@@ -115,7 +125,6 @@ class AbstractTranscription(AbstractMethod):
         """Build the NLP for ``system``; every function of it takes ``(z, data)`` with ``data`` a
         :class:`~myriad.runtime.data.ProblemData` (see :func:`~myriad.runtime.data.default_data`)."""
 
-    @abc.abstractmethod
     def sample(self, system: System, states: TrajectoryFn, controls: TrajectoryFn,
                final_time: float | None = None) -> np.ndarray:
         """The decision vector that samples given trajectories on this transcription's grid.
@@ -132,7 +141,25 @@ class AbstractTranscription(AbstractMethod):
 
         Returns:
             ``z``, a float64 array of shape (n_variables,).
+
+        Raises:
+            ValueError: a final time other than the fixed horizon of a system whose horizon is not free.
         """
+        if final_time is None:
+            T = float(system.horizon)
+        else:
+            T = float(final_time)
+            if not system.free_horizon and not math.isclose(T, float(system.horizon), rel_tol=1e-12):
+                raise ValueError(f"sample: final_time = {T:g}, but {system.name}'s horizon is fixed at "
+                                 f"{system.horizon:g}; pass final_time=None")
+            if not (math.isfinite(T) and T > 0.0):
+                raise ValueError(f"sample: final_time must be a positive number, got {final_time!r}")
+        parts = [np.asarray(part, dtype=np.float64).ravel() for part in self.sample_parts(system, states, controls, T)]
+        return np.concatenate(parts + ([np.array([T])] if system.free_horizon else []))
+
+    @abc.abstractmethod
+    def sample_parts(self, system: System, states: TrajectoryFn, controls: TrajectoryFn, T: float) -> list:
+        """:meth:`sample`'s blocks of ``z`` before a free final time, in order, on the horizon ``T``."""
 
     # ---- the method interface (see AbstractMethod) -------------------------------------------------------------
 
@@ -163,21 +190,75 @@ class AbstractTranscription(AbstractMethod):
                 for i, res in enumerate(results)]
 
 
-def sample_final_time(system: System, final_time: float | None) -> float:
-    """The horizon a ``sample`` is taken on (see :meth:`AbstractTranscription.sample`).
+class Transcribed:
+    """A transcription's NLP for one system on N grid intervals: the constants every transcription reads, its clock
+    and vector fields; each transcription's functions are methods of a subclass."""
 
-    Raises:
-        ValueError: a final time other than the fixed horizon of a system whose horizon is not free.
-    """
-    if final_time is None:
-        return float(system.horizon)
-    T = float(final_time)
-    if not system.free_horizon and not math.isclose(T, float(system.horizon), rel_tol=1e-12):
-        raise ValueError(f"sample: final_time = {T:g}, but {system.name}'s horizon is fixed at {system.horizon:g}; "
-                         f"pass final_time=None")
-    if not (math.isfinite(T) and T > 0.0):
-        raise ValueError(f"sample: final_time must be a positive number, got {final_time!r}")
-    return T
+    def __init__(self, method: AbstractTranscription, system: System, N: int):
+        self.method, self.system, self.N = method, system, N
+        self.n, self.m = system.n_states, system.n_controls
+        self.T_fixed = float(system.horizon)
+        self.times, self.h = node_times(method.grid, N, self.T_fixed)
+        self.positions = method.positions()
+        self.free = system.free_horizon
+        self.uniform = method.grid is None and not self.free
+        self.fixed, self.final = final_value_rows(system)
+        self.sx = state_scale(system)
+        self.T_lo, self.T_hi, self.T_scale, self.T_guess = final_time_variable(system)
+
+    def clock(self, z):
+        """(T, node times, steps): constants, or from the decision T (see grid.free_node_times)."""
+        if self.free:
+            return (z[-1], *free_node_times(self.positions, z[-1]))
+        return self.T_fixed, jnp.asarray(self.times), self.h
+
+    def fields(self, params):
+        f = lambda x, u, t: self.system.dynamics(x, u, t, params)  # noqa: E731
+        L = lambda x, u, t: self.system.running_cost(x, u, t, params)  # noqa: E731
+        return f, L
+
+    def run(self, f, x0, start, us, checkpoint=False, L=None):
+        """The shooting rollout of ``method.integrator`` from x0 at ``start``, the running cost L an extra state when
+        given: the uniform fixed grid steps from the start time by h as it always did; any other grid through
+        ``start``, its node times."""
+        h = self.h if self.uniform else None
+        if L is None:
+            return rollout(self.method.integrator, f, x0, start, h, us, checkpoint)
+        return rollout_with_cost(self.method.integrator, f, L, x0, start, h, us, checkpoint)
+
+    def objective(self, z, data):
+        return self.objective_and_constraints(z, data)[0]
+
+    def name(self, sizes: str, extra: str = "") -> str:
+        graded, free = "" if self.method.grid is None else ", graded", ", free T" if self.free else ""
+        return f"{self.system.name}/{self.method.label}({sizes}{graded}{free}{extra})"
+
+    def initial_guess_of(self, state_times, controls: int):
+        """``data ->`` z0: states moving linearly at ``state_times``, ``controls`` middle controls, then T's guess."""
+        system, T_guess = self.system, self.T_guess
+
+        def initial_guess(data):
+            X = guess_states(system, data.x0, state_times)
+            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, controls).ravel()),
+                                    jnp.asarray(T_guess)])
+
+        return initial_guess
+
+    def node_nlp(self, nodes: int, controls: int, path_points: int, **functions) -> NLP:
+        """The NLP of decisions ``[states at `nodes` nodes, `controls` controls, T]`` bounded on every node, whose
+        rows are the defects (``nodes`` n, = 0), the required final values, then path rows at ``path_points``."""
+        system, arrays = self.system, self.system.arrays()
+        x_lo, x_hi = node_state_bounds(system, nodes)
+        p_lo, p_hi = path_bounds(system, path_points)
+        zeros = np.zeros(nodes * self.n + self.fixed.size)
+        return NLP(
+            c_lower=np.concatenate([zeros, p_lo]),
+            c_upper=np.concatenate([zeros, p_hi]),
+            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], controls), self.T_lo]),
+            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], controls), self.T_hi]),
+            z_scale=np.concatenate([np.tile(self.sx, nodes), np.tile(control_scale(system), controls), self.T_scale]),
+            **functions,
+        )
 
 
 @functools.lru_cache(maxsize=256)

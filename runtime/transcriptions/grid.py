@@ -1,4 +1,4 @@
-"""Non-uniform grids: the ``grid`` option of every direct transcription, its node times, and rollouts on it.
+"""Non-uniform grids: the ``grid`` option of every direct transcription and its node times.
 
 A grid is a tuple of normalised node positions 0 = s_0 < s_1 < ... < s_N = 1; on a horizon T the nodes are
 t_k = T s_k and the steps h_k = t_{k+1} - t_k. ``grid=None`` is the uniform grid t_k = k T / N, computed exactly as
@@ -14,14 +14,10 @@ from __future__ import annotations
 
 from typing import Any, Callable, Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrators import AbstractIntegrator, with_running_cost
-
-__all__ = ["Grid", "check_grid", "column", "free_node_times", "grid_argument", "node_times", "rollout_on",
-           "rollout_with_cost_on", "weighted_sum"]
+__all__ = ["Grid", "check_grid", "column", "free_node_times", "grid_argument", "node_times", "weighted_sum"]
 
 Grid = tuple[float, ...]
 
@@ -83,7 +79,7 @@ def free_node_times(positions: np.ndarray, T: Any) -> tuple[Any, Any]:
     This is the time scaling t = T tau of a free final time: one step h_k of x' = f(x, u, t) is the step
     s_{k+1} - s_k in tau of dx/dtau = T f(x, u, T tau), and h_k L_k is (s_{k+1} - s_k) T L_k, so every formula of a
     transcription stays as written, with T inside its times and steps. The steps are an array even on the uniform
-    grid, so callers take their grid branch (``weighted_sum``, ``column``, ``rollout_on``).
+    grid, so callers take their grid branch (``weighted_sum``, ``column``, a rollout through the node times).
     """
     s = np.asarray(positions, dtype=np.float64)
     return T * jnp.asarray(s), T * jnp.asarray(np.diff(s))
@@ -109,37 +105,3 @@ def weighted_sum(h: Any, terms: Any, weight: Callable[[Any], Any]) -> Any:
 def column(h: Any) -> Any:
     """The step as a factor of (N, n) per-interval arrays: the float itself, or the steps as an (N, 1) column."""
     return h if isinstance(h, float) else jnp.asarray(h)[:, None]
-
-
-def rollout_on(integrator: AbstractIntegrator, f: Callable, x0: Any, times: Any, controls: Any,
-               checkpoint: bool = False) -> Any:
-    """Integrate x' = f(x, u, t) from x(times[0]) = x0 over the nodes ``times`` (any spacing), one step per
-    interval, the control linear between its node values (as :func:`~myriad.runtime.integrators.rollout`).
-
-    Returns:
-        The states at the nodes, shape (K, n); row 0 is x0.
-    """
-    x0 = jnp.asarray(x0)
-    times = jnp.asarray(times)
-    controls = jnp.asarray(controls)
-
-    def body(x, inputs):
-        t, h, u0, u1 = inputs
-        x_next = integrator.step(f, x, t, h, u0, u1)
-        return x_next, x_next
-
-    if checkpoint:
-        body = jax.checkpoint(body, prevent_cse=False, policy=jax.checkpoint_policies.nothing_saveable)
-    _, xs = jax.lax.scan(body, x0, (times[:-1], times[1:] - times[:-1], controls[:-1], controls[1:]))
-    return jnp.concatenate([x0[None], xs], axis=0)
-
-
-def rollout_with_cost_on(integrator: AbstractIntegrator, f: Callable, running_cost: Callable, x0: Any, times: Any,
-                         controls: Any, checkpoint: bool = False) -> tuple[Any, Any]:
-    """:func:`rollout_on` of the state augmented with the accumulated running cost (as
-    :func:`~myriad.runtime.integrators.rollout_with_cost`): ``(states (K, n), cost (K,))``."""
-    x0 = jnp.asarray(x0)
-    n = x0.shape[0]
-    y0 = jnp.concatenate([x0, jnp.zeros((1,), dtype=x0.dtype)])
-    ys = rollout_on(integrator, with_running_cost(f, running_cost, n), y0, times, controls, checkpoint)
-    return ys[:, :n], ys[:, n]

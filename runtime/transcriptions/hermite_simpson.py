@@ -11,20 +11,9 @@ import numpy as np
 
 from ..nlp import NLP
 from ..system import System
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, column, free_node_times, node_times, weighted_sum
-from .nlp_parts import (
-    collocation_blocks,
-    final_time_variable,
-    final_value_rows,
-    guess_controls,
-    guess_states,
-    node_state_bounds,
-    path_bounds,
-    path_rows,
-    sparsity,
-)
-from .nominal_scales import control_scale, state_scale
+from .base import AbstractTranscription, Transcribed
+from .grid import Grid, column, node_times, weighted_sum
+from .nlp_parts import collocation_blocks, path_rows, sparsity
 
 __all__ = ["HermiteSimpson"]
 
@@ -92,93 +81,72 @@ class HermiteSimpson(AbstractTranscription):
         return times, mids, half, h
 
     def transcribe(self, system: System) -> NLP:
-        N = self.intervals
-        n, m = system.n_states, system.n_controls
-        T_fixed = float(system.horizon)
-        times, mid_times, half_times, h = self._times(T_fixed)
-        positions = self.positions()
-        free = system.free_horizon
-        arrays = system.arrays()
-        fixed, final = final_value_rows(system)
-        sx, su = state_scale(system), control_scale(system)
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        nX, nU = N * n, (N + 1) * m
+        return _Transcribed(self, system, self.intervals).nlp()
 
-        def clock(z):
-            """(T, node times, midpoint times, steps): constants, or from the decision T (grid.free_node_times)."""
-            if free:
-                ts, hs = free_node_times(positions, z[-1])
-                return z[-1], ts, ts[:-1] + 0.5 * hs, hs
-            return T_fixed, jnp.asarray(times), jnp.asarray(mid_times), h
-
-        def split(z, data):
-            X = jnp.reshape(z[:nX], (N, n))
-            xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
-            return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), jnp.reshape(z[nX + nU : nX + nU + N * m], (N, m))
-
-        def collocate(z, data):
-            params = data.params
-            f = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))
-            _, ts, tms, hs = clock(z)
-            xs, us, ums = split(z, data)
-            fs = f(xs, us, ts)
-            xms = 0.5 * (xs[:-1] + xs[1:]) + (column(hs) / 8.0) * (fs[:-1] - fs[1:])
-            return xs, us, ums, xms, fs, f(xms, ums, tms)
-
-        def objective(z, data):
-            params = data.params
-            L = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))
-            T, ts, tms, hs = clock(z)
-            xs, us, ums, xms, _, _ = collocate(z, data)
-            Ls = L(xs, us, ts)
-            Lms = L(xms, ums, tms)
-            quad = weighted_sum(hs, Ls[:-1] + 4.0 * Lms + Ls[1:], lambda h: h / 6.0)
-            return quad + system.terminal_cost(xs[-1], T, params)
-
-        def constraints(z, data):
-            _, ts, tms, hs = clock(z)
-            xs, us, ums, xms, fs, fms = collocate(z, data)
-            defects = (xs[1:] - xs[:-1] - (column(hs) / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / sx
-            half = _interleave(ts[:, None], tms[:, None])[:, 0]
-            path = path_rows(system, data.params, _interleave(xs, xms), _interleave(us, ums), half)
-            return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final, path])
-
-        def unravel(z, data):
-            _, ts, tms, _ = clock(z)
-            xs, us, ums, xms, _, _ = collocate(z, data)
-            half = _interleave(ts[:, None], tms[:, None])[:, 0] if free else jnp.asarray(half_times)
-            return half, _interleave(xs, xms), _interleave(us, ums)
-
-        def initial_guess(data):
-            X = guess_states(system, data.x0, times[1:])
-            U = guess_controls(system, 2 * N + 1)
-            return jnp.concatenate([X.ravel(), jnp.asarray(U[: N + 1].ravel()), jnp.asarray(U[N + 1 :].ravel()),
-                                    jnp.asarray(T_guess)])
-
-        x_lo, x_hi = node_state_bounds(system, N)
-        p_lo, p_hi = path_bounds(system, 2 * N + 1)
-        return NLP(
-            objective=objective,
-            constraints=constraints,
-            c_lower=np.concatenate([np.zeros(N * n + fixed.size), p_lo]),
-            c_upper=np.concatenate([np.zeros(N * n + fixed.size), p_hi]),
-            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], 2 * N + 1), T_lo]),
-            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], 2 * N + 1), T_hi]),
-            initial_guess=initial_guess,
-            unravel=unravel,
-            jacobian_sparsity=sparsity(_blocks(N, n, m, fixed, system.n_path, T_lo.size)),
-            z_scale=np.concatenate([np.tile(sx, N), np.tile(su, 2 * N + 1), T_scale]),
-            name=f"{system.name}/hermite_simpson(N={N}{'' if self.grid is None else ', graded'}"
-                 f"{', free T' if free else ''})",
-        )
-
-    def sample(self, system, states, controls, final_time=None):
-        T = sample_final_time(system, final_time)
+    def sample_parts(self, system, states, controls, T):
         times, mids, _, _ = self._times(T)
-        X = np.asarray(states(times[1:]), dtype=np.float64)
-        U = np.asarray(controls(times), dtype=np.float64)
-        Um = np.asarray(controls(mids), dtype=np.float64)
-        return np.concatenate([X.ravel(), U.ravel(), Um.ravel()] + ([np.array([T])] if system.free_horizon else []))
+        return [states(times[1:]), controls(times), controls(mids)]
+
+
+class _Transcribed(Transcribed):
+    """Hermite-Simpson collocation's NLP for one system."""
+
+    def __init__(self, method: HermiteSimpson, system: System, N: int):
+        super().__init__(method, system, N)
+        _, self.mid_times, self.half_times, _ = method._times(self.T_fixed)
+
+    def clock(self, z):
+        """(T, node times, midpoint times, steps): constants, or from the decision T (grid.free_node_times)."""
+        T, ts, hs = super().clock(z)
+        return T, ts, ts[:-1] + 0.5 * hs if self.free else jnp.asarray(self.mid_times), hs
+
+    def split(self, z, data):
+        N, n, m = self.N, self.n, self.m
+        nX, nU = N * n, (N + 1) * m
+        X = jnp.reshape(z[:nX], (N, n))
+        xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
+        return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), jnp.reshape(z[nX + nU : nX + nU + N * m], (N, m))
+
+    def collocate(self, z, data):
+        f = jax.vmap(self.fields(data.params)[0])
+        _, ts, tms, hs = self.clock(z)
+        xs, us, ums = self.split(z, data)
+        fs = f(xs, us, ts)
+        xms = 0.5 * (xs[:-1] + xs[1:]) + (column(hs) / 8.0) * (fs[:-1] - fs[1:])
+        return xs, us, ums, xms, fs, f(xms, ums, tms)
+
+    def objective(self, z, data):
+        params = data.params
+        L = jax.vmap(self.fields(params)[1])
+        T, ts, tms, hs = self.clock(z)
+        xs, us, ums, xms, _, _ = self.collocate(z, data)
+        Ls = L(xs, us, ts)
+        Lms = L(xms, ums, tms)
+        quad = weighted_sum(hs, Ls[:-1] + 4.0 * Lms + Ls[1:], lambda h: h / 6.0)
+        return quad + self.system.terminal_cost(xs[-1], T, params)
+
+    def constraints(self, z, data):
+        _, ts, tms, hs = self.clock(z)
+        xs, us, ums, xms, fs, fms = self.collocate(z, data)
+        defects = (xs[1:] - xs[:-1] - (column(hs) / 6.0) * (fs[:-1] + 4.0 * fms + fs[1:])) / self.sx
+        half = _interleave(ts[:, None], tms[:, None])[:, 0]
+        path = path_rows(self.system, data.params, _interleave(xs, xms), _interleave(us, ums), half)
+        return jnp.concatenate([defects.ravel(), xs[-1, self.fixed] - self.final, path])
+
+    def unravel(self, z, data):
+        _, ts, tms, _ = self.clock(z)
+        xs, us, ums, xms, _, _ = self.collocate(z, data)
+        half = _interleave(ts[:, None], tms[:, None])[:, 0] if self.free else jnp.asarray(self.half_times)
+        return half, _interleave(xs, xms), _interleave(us, ums)
+
+    def nlp(self) -> NLP:
+        N = self.N
+        return self.node_nlp(
+            N, 2 * N + 1, 2 * N + 1, objective=self.objective, constraints=self.constraints,
+            initial_guess=self.initial_guess_of(self.times[1:], 2 * N + 1), unravel=self.unravel,
+            jacobian_sparsity=sparsity(_blocks(N, self.n, self.m, self.fixed, self.system.n_path, self.T_lo.size)),
+            name=self.name(f"N={N}"),
+        )
 
 
 def _interleave(nodes, mids):

@@ -9,22 +9,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrators import RK4, AbstractIntegrator, rollout, rollout_with_cost
+from ..integrators import RK4, AbstractIntegrator
 from ..nlp import NLP
 from ..system import System
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, check_grid, free_node_times, grid_argument, node_times, rollout_on, rollout_with_cost_on
-from .nlp_parts import (
-    final_time_variable,
-    final_value_rows,
-    guess_controls,
-    guess_states,
-    node_state_bounds,
-    path_bounds,
-    path_rows,
-    sparsity,
-)
-from .nominal_scales import control_scale, state_scale
+from .base import AbstractTranscription, Transcribed
+from .grid import Grid, check_grid, grid_argument, node_times
+from .nlp_parts import path_rows, sparsity
 
 __all__ = ["MultipleShooting"]
 
@@ -130,64 +120,35 @@ class MultipleShooting(AbstractTranscription):
     def transcribe(self, system: System) -> NLP:
         return _Transcribed(self, system).nlp()
 
-    def sample(self, system, states, controls, final_time=None):
+    def sample_parts(self, system, states, controls, T):
         S = self.steps_per_interval
-        T = sample_final_time(system, final_time)
         times, _ = node_times(self.grid, self.intervals * S, T)
-        X = np.asarray(states(times[S::S]), dtype=np.float64)
-        U = np.asarray(controls(times), dtype=np.float64)
-        return np.concatenate([X.ravel(), U.ravel()] + ([np.array([T])] if system.free_horizon else []))
+        return [states(times[S::S]), controls(times)]
 
 
-class _Transcribed:
-    """Multiple shooting's NLP for one system: its constants, and its functions as methods over them."""
+class _Transcribed(Transcribed):
+    """Multiple shooting's NLP for one system."""
 
     def __init__(self, method: MultipleShooting, system: System):
-        self.method, self.system = method, system
         self.M, self.S = method.intervals, method.steps_per_interval
-        self.N = self.M * self.S
-        self.n, self.m = system.n_states, system.n_controls
-        self.T_fixed = float(system.horizon)
-        self.times, self.h = node_times(method.grid, self.N, self.T_fixed)
-        self.positions = method.positions()
-        self.free = system.free_horizon
+        super().__init__(method, system, self.M * self.S)
         self.shooting_times = self.times[::self.S]  # shooting nodes t_0..t_M
         # The control nodes of each interval, (M, S+1).
         self.window = np.arange(self.M)[:, None] * self.S + np.arange(self.S + 1)[None, :]
-        self.fixed, self.final = final_value_rows(system)
-        self.sx = state_scale(system)
-        self.integrator = method.integrator
         self.nX, self.nU = self.M * self.n, (self.N + 1) * self.m
-        self.uniform = method.grid is None and not self.free
 
     def clock(self, z):
         """(T, node times, each interval's start or nodes): constants, or from the decision T."""
+        T, ts, _ = super().clock(z)
         if self.free:
-            ts = free_node_times(self.positions, z[-1])[0]
-            return z[-1], ts, ts[self.window]
+            return T, ts, ts[self.window]
         # Each interval's rollout starts from its time (uniform grid: t_j and the step h, as always) or steps
         # through its own S + 1 nodes (a grid).
-        return self.T_fixed, self.times, jnp.asarray(self.shooting_times[:-1] if self.method.grid is None
-                                                     else self.times[self.window])
+        return T, ts, jnp.asarray(self.shooting_times[:-1] if self.method.grid is None else self.times[self.window])
 
     def split(self, z):
         nX, nU = self.nX, self.nU
         return jnp.reshape(z[:nX], (self.M, self.n)), jnp.reshape(z[nX : nX + nU], (self.N + 1, self.m))
-
-    def run(self, f, x, ts, u):
-        if self.uniform:
-            return rollout(self.integrator, f, x, ts, self.h, u)
-        return rollout_on(self.integrator, f, x, ts, u)
-
-    def run_with_cost(self, f, L, x, ts, u):
-        if self.uniform:
-            return rollout_with_cost(self.integrator, f, L, x, ts, self.h, u)
-        return rollout_with_cost_on(self.integrator, f, L, x, ts, u)
-
-    def fields(self, params):
-        f = lambda x, u, t: self.system.dynamics(x, u, t, params)  # noqa: E731
-        L = lambda x, u, t: self.system.running_cost(x, u, t, params)  # noqa: E731
-        return f, L
 
     def starts_and_windows(self, z, data):
         X, U = self.split(z)
@@ -208,27 +169,25 @@ class _Transcribed:
         f, L = self.fields(params)
         T, ts, when = self.clock(z)
         X, U, starts, Uw = self.starts_and_windows(z, data)
-        shoot = lambda x, t, u: self.run_with_cost(f, L, x, t, u)  # noqa: E731
+        shoot = lambda x, t, u: self.run(f, x, t, u, L=L)  # noqa: E731
         xs, costs = jax.vmap(shoot)(starts, when, Uw)
         return (jnp.sum(costs[:, -1]) + self.system.terminal_cost(X[-1], T, params),
                 self.constraint_rows(X, U, xs, ts, params))
 
-    def objective(self, z, data):
-        return self.objective_and_constraints(z, data)[0]
-
-    def constraints(self, z, data):
-        # Without the cost state: the cheaper rollout when only the rows are wanted.
+    def rollouts(self, z, data):
+        """(X, U, node times, each interval's states (M, S+1, n)), without the cost state: the cheaper rollout when
+        only the rows are wanted."""
         f, _ = self.fields(data.params)
         _, ts, when = self.clock(z)
         X, U, starts, Uw = self.starts_and_windows(z, data)
-        xs = jax.vmap(lambda x, t, u: self.run(f, x, t, u))(starts, when, Uw)
+        return X, U, ts, jax.vmap(lambda x, t, u: self.run(f, x, t, u))(starts, when, Uw)
+
+    def constraints(self, z, data):
+        X, U, ts, xs = self.rollouts(z, data)
         return self.constraint_rows(X, U, xs, ts, data.params)
 
     def unravel(self, z, data):
-        f, _ = self.fields(data.params)
-        _, ts, when = self.clock(z)
-        X, U, starts, Uw = self.starts_and_windows(z, data)
-        xs = jax.vmap(lambda x, t, u: self.run(f, x, t, u))(starts, when, Uw)  # (M, S+1, n)
+        X, U, ts, xs = self.rollouts(z, data)
         return jnp.asarray(ts), self.node_states(X, xs), U
 
     def sparsity_blocks(self, n_T: int) -> list:
@@ -257,30 +216,10 @@ class _Transcribed:
         return blocks
 
     def nlp(self) -> NLP:
-        system, M, N, n = self.system, self.M, self.N, self.n
-        arrays = system.arrays()
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        shooting_times = self.shooting_times
-
-        def initial_guess(data):
-            X = guess_states(system, data.x0, shooting_times[1:])
-            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
-                                    jnp.asarray(T_guess)])
-
-        x_lo, x_hi = node_state_bounds(system, M)
-        p_lo, p_hi = path_bounds(system, N + 1)
-        return NLP(
-            objective=self.objective,
-            constraints=self.constraints,
-            c_lower=np.concatenate([np.zeros(M * n + self.fixed.size), p_lo]),
-            c_upper=np.concatenate([np.zeros(M * n + self.fixed.size), p_hi]),
-            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1), T_lo]),
-            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
-            initial_guess=initial_guess,
-            unravel=self.unravel,
-            jacobian_sparsity=sparsity(self.sparsity_blocks(T_lo.size)),
-            z_scale=np.concatenate([np.tile(self.sx, M), np.tile(control_scale(system), N + 1), T_scale]),
-            name=f"{system.name}/multiple_shooting(M={M}, S={self.S}, {type(self.integrator).__name__}"
-                 f"{'' if self.method.grid is None else ', graded'}{', free T' if self.free else ''})",
+        return self.node_nlp(
+            self.M, self.N + 1, self.N + 1, objective=self.objective, constraints=self.constraints,
+            initial_guess=self.initial_guess_of(self.shooting_times[1:], self.N + 1), unravel=self.unravel,
+            jacobian_sparsity=sparsity(self.sparsity_blocks(self.T_lo.size)),
+            name=self.name(f"M={self.M}, S={self.S}, {type(self.method.integrator).__name__}"),
             objective_and_constraints=self.objective_and_constraints,
         )

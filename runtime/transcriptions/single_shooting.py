@@ -8,21 +8,14 @@ from typing import ClassVar
 import jax.numpy as jnp
 import numpy as np
 
-from ..integrators import AbstractIntegrator, Heun, rollout, rollout_with_cost, with_running_cost
+from ..integrators import AbstractIntegrator, Heun, with_running_cost
 from ..nlp import NLP
 from ..smallops import take
 from ..system import System
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, free_node_times, node_times, rollout_on, rollout_with_cost_on
-from .nlp_parts import (
-    bounded_free_states,
-    final_time_variable,
-    final_value_rows,
-    guess_controls,
-    path_bounds,
-    path_rows,
-)
-from .nominal_scales import control_scale, state_scale
+from .base import AbstractTranscription, Transcribed
+from .grid import Grid, node_times
+from .nlp_parts import bounded_free_states, guess_controls, path_bounds, path_rows
+from .nominal_scales import control_scale
 from .staged import stage_derivatives as staged_stage_derivatives
 from .staged import staged_derivatives
 
@@ -64,11 +57,9 @@ class SingleShooting(AbstractTranscription):
         intervals: N, the number of control intervals (N + 1 control nodes).
         integrator: the one-step method of the rollout (Heun, as published).
         enforce_final_state_bounds: add the final-node state-bound rows.
-        checkpoint: rematerialise the rollout's steps when differentiating (see ``rollout``). The derivative
-            programs of a small system are bound by the number of XLA kernels per step, not by arithmetic: saving
-            only the state at each node and recomputing the step on the way back removes most of them, which pays on
-            16 of the 18 systems; a system whose step is expensive (Rocket Landing) loses. Values are identical
-            either way. Measurements: docs/notes/single-shooting-checkpoint.md.
+        checkpoint: rematerialise the rollout's steps when differentiating (see ``rollout``): fewer XLA kernels per
+            step, which pays unless the step is expensive; values are identical either way
+            (docs/notes/single-shooting-checkpoint.md).
         grid: None (uniform), or the N + 1 normalised control nodes 0 = s_0 < ... < s_N = 1 (see ``grid.py``);
             the integrator steps follow it. ``SingleShooting.on_grid(grid)`` sets ``intervals`` from it.
         soft_state_bounds: None (hard final-state bounds), or the penalty rho > 0 per unit of violation of a
@@ -101,33 +92,22 @@ class SingleShooting(AbstractTranscription):
             object.__setattr__(self, "soft_state_bounds", float(rho))
 
     def transcribe(self, system: System) -> NLP:
-        return _Transcribed(self, system).nlp()
+        return _Transcribed(self, system, self.intervals).nlp()
 
-    def sample(self, system, states, controls, final_time=None):
-        del states
-        T = sample_final_time(system, final_time)
+    def sample_parts(self, system, states, controls, T):
         times, _ = node_times(self.grid, self.intervals, T)
-        U = np.asarray(controls(times), dtype=np.float64).reshape(-1)
-        if self.soft_state_bounds is not None and self.enforce_final_state_bounds:
-            U = np.concatenate([U, np.zeros(2 * bounded_free_states(system).size)])  # the slacks: no violation
-        return np.concatenate([U, [T]]) if system.free_horizon else U
+        soft = self.soft_state_bounds is not None and self.enforce_final_state_bounds
+        # The slacks: no violation.
+        return [controls(times), np.zeros(2 * bounded_free_states(system).size if soft else 0)]
 
 
-class _Transcribed:
-    """Single shooting's NLP for one system: its constants, and its functions as methods over them."""
+class _Transcribed(Transcribed):
+    """Single shooting's NLP for one system."""
 
-    def __init__(self, method: SingleShooting, system: System):
-        self.method, self.system = method, system
-        self.N, self.m = method.intervals, system.n_controls
-        self.T_fixed = float(system.horizon)
-        self.times, self.h = node_times(method.grid, self.N, self.T_fixed)
-        self.positions = method.positions()
-        self.free = system.free_horizon
-        self.fixed, self.final = final_value_rows(system)
+    def __init__(self, method: SingleShooting, system: System, N: int):
+        super().__init__(method, system, N)
         self.bounded = (bounded_free_states(system) if method.enforce_final_state_bounds
                         else np.zeros(0, dtype=np.int64))
-        self.sx = state_scale(system)
-        self.integrator = method.integrator
         self.nU = (self.N + 1) * self.m
         self.rho = method.soft_state_bounds
         # Elastic rows: slacks p (nS) and n (nS) after the controls.
@@ -136,30 +116,12 @@ class _Transcribed:
         self.stage_index = np.arange(self.N)[:, None] * self.m + np.arange(2 * self.m)[None, :]
         self.staged = not self.free and self.nS == 0 and not system.n_path
 
-    def clock(self, z):
-        """(T, node times): the constants of a fixed horizon, or from the decision T (see grid.free_node_times)."""
-        if self.free:
-            return z[-1], free_node_times(self.positions, z[-1])[0]
-        return self.T_fixed, self.times
-
-    # The uniform fixed grid keeps the rollouts it always had (t_k = k h); any other steps through its nodes.
-    def run(self, f, x0, us, ts, checkpoint=False):
-        if self.method.grid is None and not self.free:
-            return rollout(self.integrator, f, x0, 0.0, self.h, us, checkpoint)
-        return rollout_on(self.integrator, f, x0, ts, us, checkpoint)
-
-    def run_with_cost(self, f, L, x0, us, ts, checkpoint=False):
-        if self.method.grid is None and not self.free:
-            return rollout_with_cost(self.integrator, f, L, x0, 0.0, self.h, us, checkpoint)
-        return rollout_with_cost_on(self.integrator, f, L, x0, ts, us, checkpoint)
+    def start(self, ts):
+        """The rollout's ``start``: t_0 = 0 on the uniform fixed grid (t_k = k h, as always), else the node times."""
+        return 0.0 if self.uniform else ts
 
     def controls_of(self, z):
         return jnp.reshape(z[:self.nU], (self.N + 1, self.m))
-
-    def fields(self, params):
-        f = lambda x, u, t: self.system.dynamics(x, u, t, params)  # noqa: E731
-        L = lambda x, u, t: self.system.running_cost(x, u, t, params)  # noqa: E731
-        return f, L
 
     def slack(self, z):
         return z[self.nU:self.nU + self.nS] - z[self.nU + self.nS:self.nU + 2 * self.nS]  # p - n
@@ -172,27 +134,24 @@ class _Transcribed:
     def objective_and_constraints(self, z, data):
         params = data.params
         f, L = self.fields(params)
-        T, ts = self.clock(z)
+        T, ts, _ = self.clock(z)
         us = self.controls_of(z)
-        xs, cost = self.run_with_cost(f, L, data.x0, us, ts, self.method.checkpoint)
+        xs, cost = self.run(f, data.x0, self.start(ts), us, self.method.checkpoint, L)
         penalty = self.rho * jnp.sum(z[self.nU:self.nU + 2 * self.nS]) if self.nS else 0.0
         return cost[-1] + self.system.terminal_cost(xs[-1], T, params) + penalty, self.rows(z, xs, us, ts, params)
-
-    def objective(self, z, data):
-        return self.objective_and_constraints(z, data)[0]
 
     def constraints(self, z, data):
         # Without the cost state: the cheaper rollout when only the rows are wanted.
         f, _ = self.fields(data.params)
-        _, ts = self.clock(z)
+        _, ts, _ = self.clock(z)
         us = self.controls_of(z)
-        return self.rows(z, self.run(f, data.x0, us, ts, self.method.checkpoint), us, ts, data.params)
+        return self.rows(z, self.run(f, data.x0, self.start(ts), us, self.method.checkpoint), us, ts, data.params)
 
     def unravel(self, z, data):
         f, _ = self.fields(data.params)
-        _, ts = self.clock(z)
+        _, ts, _ = self.clock(z)
         us = self.controls_of(z)
-        return jnp.asarray(ts), self.run(f, data.x0, us, ts), us
+        return jnp.asarray(ts), self.run(f, data.x0, self.start(ts), us), us
 
     def lagrangian_derivatives(self, z, lam, data, objective_weight=1.0, hessian=True):
         # Stage by stage (staged.py): the published setting's Hessian without a reverse pass over the rollout.
@@ -218,7 +177,7 @@ class _Transcribed:
         def step(k, y, v):
             t_k, h_k = (k.astype(y.dtype) * h, h) if self.method.grid is None else (jnp.asarray(times)[k],
                                                                                      jnp.asarray(h)[k])
-            return self.integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
+            return self.method.integrator.step(f_aug, y, t_k, h_k, v[:m], v[m:])
 
         def terminal(y):  # no path rows or slacks here: rows() reads the final state alone
             return y[n] + system.terminal_cost(y[:n], self.T_fixed, data.params), self.rows(z, y[None, :n], None,
@@ -230,8 +189,8 @@ class _Transcribed:
     def nlp(self) -> NLP:
         system, N, nS, bounded, sx = self.system, self.N, self.nS, self.bounded, self.sx
         arrays = system.arrays()
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        guess = np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), T_guess])
+        T_lo, T_hi, T_scale = self.T_lo, self.T_hi, self.T_scale
+        guess = np.concatenate([guess_controls(system, N + 1).ravel(), np.zeros(2 * nS), self.T_guess])
 
         def initial_guess(data):
             del data
@@ -251,9 +210,8 @@ class _Transcribed:
             unravel=self.unravel,
             jacobian_sparsity=None,
             z_scale=np.concatenate([np.tile(control_scale(system), N + 1), np.ones(2 * nS), T_scale]),
-            name=f"{system.name}/single_shooting(N={N}, {type(self.integrator).__name__}"
-                 f"{'' if self.method.grid is None else ', graded'}{', free T' if self.free else ''}"
-                 f"{f', soft bounds {self.rho:g}' if nS else ''})",
+            name=self.name(f"N={N}, {type(self.method.integrator).__name__}",
+                           f", soft bounds {self.rho:g}" if nS else ""),
             objective_and_constraints=self.objective_and_constraints if n_rows else None,
             lagrangian_derivatives=self.lagrangian_derivatives if staged else None,
             stage_derivatives=self.stage_derivatives if staged else None,

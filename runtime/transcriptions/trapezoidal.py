@@ -11,20 +11,9 @@ import numpy as np
 
 from ..nlp import NLP
 from ..system import System
-from .base import AbstractTranscription, sample_final_time
-from .grid import Grid, column, free_node_times, node_times, weighted_sum
-from .nlp_parts import (
-    collocation_blocks,
-    final_time_variable,
-    final_value_rows,
-    guess_controls,
-    guess_states,
-    node_state_bounds,
-    path_bounds,
-    path_rows,
-    sparsity,
-)
-from .nominal_scales import control_scale, state_scale
+from .base import AbstractTranscription, Transcribed
+from .grid import Grid, column, node_times, weighted_sum
+from .nlp_parts import collocation_blocks, path_rows, sparsity
 
 __all__ = ["Trapezoidal"]
 
@@ -63,77 +52,52 @@ class Trapezoidal(AbstractTranscription):
     grid: Grid | None = None
 
     def transcribe(self, system: System) -> NLP:
-        N = self.intervals
-        n, m = system.n_states, system.n_controls
-        T_fixed = float(system.horizon)
-        times, h = node_times(self.grid, N, T_fixed)
-        positions = self.positions()
-        free = system.free_horizon
-        arrays = system.arrays()
-        fixed, final = final_value_rows(system)
-        sx, su = state_scale(system), control_scale(system)
-        T_lo, T_hi, T_scale, T_guess = final_time_variable(system)
-        nX, nU = N * n, (N + 1) * m
+        return _Transcribed(self, system, self.intervals).nlp()
 
-        def clock(z):
-            """(T, node times, steps): constants, or from the decision T (see grid.free_node_times)."""
-            if free:
-                return (z[-1], *free_node_times(positions, z[-1]))
-            return T_fixed, jnp.asarray(times), h
-
-        def nodes(z, data):
-            X = jnp.reshape(z[:nX], (N, n))
-            xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
-            return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m))
-
-        def objective(z, data):
-            params = data.params
-            xs, us = nodes(z, data)
-            T, ts, hs = clock(z)
-            Ls = jax.vmap(lambda x, u, t: system.running_cost(x, u, t, params))(xs, us, ts)
-            quad = weighted_sum(hs, Ls[:-1] + Ls[1:], lambda h: 0.5 * h)
-            return quad + system.terminal_cost(xs[-1], T, params)
-
-        def constraints(z, data):
-            params = data.params
-            xs, us = nodes(z, data)
-            _, ts, hs = clock(z)
-            fs = jax.vmap(lambda x, u, t: system.dynamics(x, u, t, params))(xs, us, ts)
-            defects = (xs[1:] - xs[:-1] - 0.5 * column(hs) * (fs[:-1] + fs[1:])) / sx
-            return jnp.concatenate([defects.ravel(), xs[-1, fixed] - final, path_rows(system, params, xs, us, ts)])
-
-        def unravel(z, data):
-            xs, us = nodes(z, data)
-            return clock(z)[1], xs, us
-
-        def initial_guess(data):
-            X = guess_states(system, data.x0, times[1:])
-            return jnp.concatenate([X.ravel(), jnp.asarray(guess_controls(system, N + 1).ravel()),
-                                    jnp.asarray(T_guess)])
-
-        x_lo, x_hi = node_state_bounds(system, N)
-        p_lo, p_hi = path_bounds(system, N + 1)
-        return NLP(
-            objective=objective,
-            constraints=constraints,
-            c_lower=np.concatenate([np.zeros(N * n + fixed.size), p_lo]),
-            c_upper=np.concatenate([np.zeros(N * n + fixed.size), p_hi]),
-            z_lower=np.concatenate([x_lo, np.tile(arrays["u_lower"], N + 1), T_lo]),
-            z_upper=np.concatenate([x_hi, np.tile(arrays["u_upper"], N + 1), T_hi]),
-            initial_guess=initial_guess,
-            unravel=unravel,
-            jacobian_sparsity=sparsity(_blocks(N, n, m, fixed, system.n_path, T_lo.size)),
-            z_scale=np.concatenate([np.tile(sx, N), np.tile(su, N + 1), T_scale]),
-            name=f"{system.name}/trapezoidal(N={N}{'' if self.grid is None else ', graded'}"
-                 f"{', free T' if free else ''})",
-        )
-
-    def sample(self, system, states, controls, final_time=None):
-        T = sample_final_time(system, final_time)
+    def sample_parts(self, system, states, controls, T):
         times, _ = node_times(self.grid, self.intervals, T)
-        X = np.asarray(states(times[1:]), dtype=np.float64)
-        U = np.asarray(controls(times), dtype=np.float64)
-        return np.concatenate([X.ravel(), U.ravel()] + ([np.array([T])] if system.free_horizon else []))
+        return [states(times[1:]), controls(times)]
+
+
+class _Transcribed(Transcribed):
+    """Trapezoidal collocation's NLP for one system."""
+
+    def nodes(self, z, data):
+        N, n, m = self.N, self.n, self.m
+        nX, nU = N * n, (N + 1) * m
+        X = jnp.reshape(z[:nX], (N, n))
+        xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
+        return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m))
+
+    def objective(self, z, data):
+        params = data.params
+        xs, us = self.nodes(z, data)
+        T, ts, hs = self.clock(z)
+        Ls = jax.vmap(self.fields(params)[1])(xs, us, ts)
+        quad = weighted_sum(hs, Ls[:-1] + Ls[1:], lambda h: 0.5 * h)
+        return quad + self.system.terminal_cost(xs[-1], T, params)
+
+    def constraints(self, z, data):
+        params = data.params
+        xs, us = self.nodes(z, data)
+        _, ts, hs = self.clock(z)
+        fs = jax.vmap(self.fields(params)[0])(xs, us, ts)
+        defects = (xs[1:] - xs[:-1] - 0.5 * column(hs) * (fs[:-1] + fs[1:])) / self.sx
+        return jnp.concatenate([defects.ravel(), xs[-1, self.fixed] - self.final,
+                                path_rows(self.system, params, xs, us, ts)])
+
+    def unravel(self, z, data):
+        xs, us = self.nodes(z, data)
+        return self.clock(z)[1], xs, us
+
+    def nlp(self) -> NLP:
+        N = self.N
+        return self.node_nlp(
+            N, N + 1, N + 1, objective=self.objective, constraints=self.constraints,
+            initial_guess=self.initial_guess_of(self.times[1:], N + 1), unravel=self.unravel,
+            jacobian_sparsity=sparsity(_blocks(N, self.n, self.m, self.fixed, self.system.n_path, self.T_lo.size)),
+            name=self.name(f"N={N}"),
+        )
 
 
 def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) -> list:
