@@ -1,42 +1,11 @@
-"""The functional environment: any system as pure ``reset`` / ``step`` functions that ``jax.jit`` and ``jax.vmap``.
+"""The functional environment: any system as pure ``reset`` / ``step`` functions that ``jax.jit`` and ``jax.vmap``,
+in gymnax's signatures. The episode's contract (observation, action, reward and terminal penalty, termination, the
+automatic reset) is in README.md in this folder.
 
     env = make_jax("van_der_pol")                 # Env(system, EnvOptions())
     params = env.default_params()                 # ProblemData(params, x0): data, so a batch is one vmap
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
-
-The signatures are gymnax's (``reset(key, params)``, ``step(key, state, action, params)``); a gymnax-based trainer
-(rejax, PureJaxRL) takes it through :class:`~myriad.runtime.rl.gymnax.GymnaxEnv`, which adds gymnax's base class,
-spaces and params (the optional extra ``rl``). One episode is the optimal-control problem on the grid t_k = k T / N:
-
-* observation: ``[x_k, T - t_k]``, the state and the time to go (the problems have a fixed horizon, so a policy
-  needs the time to be Markov);
-* action: the control held constant over [t_k, t_{k+1}] (zero-order hold), integrated by ``substeps`` steps of
-  ``integrator``. With ``normalize_actions`` (the default) an action in [-1, 1]^m is mapped affinely onto the control
-  bounds; otherwise it is the control itself. Either way it is clipped to the bounds first: a policy cannot leave
-  them;
-* reward: ``-(int_{t_k}^{t_{k+1}} L dt)``, the running cost integrated as an extra state by the same integrator and
-  substeps as the dynamics (as :func:`~myriad.runtime.integrators.rollout_with_cost` does for the optimiser); on the
-  step that reaches T, also ``-phi(x(T), T)`` and the terminal penalty
-
-      P = w * ( sum_i ((x_i(T) - x_final,i) / s_i)^2  +  sum_j (v_j / s_j)^2 ),   w = penalty * c,
-
-  over the states i with a required final value and the other states j with a finite bound, v_j the distance of
-  x_j(T) outside its bounds: exactly the rows the published single shooting constrains at T, so a policy cannot beat
-  the optimiser by breaking them (Tumour's drug budget, Bacteria's x(T) <= 10). s is the state's nominal scale
-  (finite bounds, else |x0|, else 1) and c = max(1, |reference target|) from the spec (1 without one), so that the
-  penalty is in the units of the problem's cost. It is quadratic so that a trajectory meeting its conditions to a
-  solver's tolerance (1e-8) pays nothing measurable;
-* sign: costs are in minimisation form (see :mod:`myriad.runtime.system`), so the return is ``-J``; for a spec
-  written with ``sense: maximize`` that is the payoff itself, and a larger return is better either way;
-* ``terminated`` when t reaches T (step N); ``truncated`` when a shorter user limit ``max_steps`` is reached first;
-* the spec's state bounds are constraints of the control problem, not walls: the state is never clipped (that would
-  change the dynamics the optimiser solved); along the way they are reported, not penalised (the published single
-  shooting does not constrain them either): ``info["bound_violation"]`` is the largest violation relative to s.
-
-``step`` resets automatically when an episode ends and returns the new episode's first observation; the observation
-the step reached is in ``info["final_observation"]`` (always present, so ``info`` has one structure under ``jit``).
-``step_env`` is the same step without the reset.
 """
 
 from __future__ import annotations
@@ -77,7 +46,7 @@ class EnvOptions:
         start_noise: random starts: x0 + start_noise * s * U(-1, 1) per state (s the nominal scale), clipped to the
             state bounds; 0 starts at x0 exactly.
         penalty: the weight of the terminal penalty on missed final values and final-state bounds, per unit of the
-            system's cost scale (see the module); 0 turns it off.
+            system's cost scale (README.md: the episode); 0 turns it off.
         normalize_actions: actions in [-1, 1] mapped onto the control bounds (what RL libraries and Gymnasium's
             checker expect); False: actions are the controls, in their units.
         action_bound: B > 0, the bound used on every unbounded side of a control ([-B, B] for a free control);
@@ -134,12 +103,7 @@ class Episode(NamedTuple):
 
 @dataclasses.dataclass(frozen=True)
 class Env:
-    """A system as a functional environment (see the module docstring for the contract).
-
-    Attributes:
-        system: the system.
-        options: an :class:`EnvOptions`.
-    """
+    """A system as a functional environment (README.md in this folder: the episode's contract)."""
 
     system: System
     options: EnvOptions = EnvOptions()
@@ -269,7 +233,7 @@ class Env:
             "control": u,
             "running_cost": running,
             "penalty": jnp.where(terminated, penalty, jnp.zeros((), dtype)),
-            "bound_violation": self._bound_violation(x_next),
+            "bound_violation": jnp.max(self._outside(x_next)),
         }
         return obs, next_state, -cost, terminated, truncated, info
 
@@ -287,32 +251,27 @@ class Env:
         return jnp.where(done, obs_reset, obs), next_state, reward, terminated, truncated, info
 
     # ---- helpers ---------------------------------------------------------------------------------------------
-    @property
-    def penalty_weight(self) -> float:
-        """w = penalty * max(1, |reference target|): the terminal penalty's weight in the units of the cost."""
-        ref = dict(self.system.reference)
-        target = ref.get("target", ref.get("published"))
-        return self.options.penalty * max(1.0, abs(float(target)) if target is not None else 1.0)
+    def _outside(self, x):
+        """Each state's distance outside its bounds, relative to its nominal scale s (0 inside)."""
+        a = self.system.arrays()
+        lo, hi = jnp.asarray(a["x_lower"], x.dtype), jnp.asarray(a["x_upper"], x.dtype)
+        over = jnp.maximum(jnp.maximum(lo - x, x - hi), jnp.zeros((), x.dtype))
+        return over / jnp.asarray(state_scale(self.system), x.dtype)
 
     def _terminal_penalty(self, x):
+        """P = w * (the scaled misses of the required final values and of the final-state bounds, squared), with
+        w = penalty * max(1, |reference target|): the weight in the units of the cost."""
         system = self.system
         if self.options.penalty == 0:
             return jnp.zeros((), x.dtype)
         scale = jnp.asarray(state_scale(system), x.dtype)
         fixed, final = final_value_rows(system)
-        bounded = bounded_free_states(system)
-        a = system.arrays()
-        lo, hi = jnp.asarray(a["x_lower"][bounded], x.dtype), jnp.asarray(a["x_upper"][bounded], x.dtype)
-        xb = x[bounded]
-        outside = jnp.maximum(jnp.maximum(lo - xb, xb - hi), jnp.zeros((), x.dtype))
-        rows = jnp.concatenate([(x[fixed] - jnp.asarray(final, x.dtype)) / scale[fixed], outside / scale[bounded]])
-        return self.penalty_weight * jnp.sum(rows * rows)
-
-    def _bound_violation(self, x):
-        a = self.system.arrays()
-        lo, hi = jnp.asarray(a["x_lower"], x.dtype), jnp.asarray(a["x_upper"], x.dtype)
-        over = jnp.maximum(jnp.maximum(lo - x, x - hi), jnp.zeros((), x.dtype))
-        return jnp.max(over / jnp.asarray(state_scale(self.system), x.dtype))
+        rows = jnp.concatenate([(x[fixed] - jnp.asarray(final, x.dtype)) / scale[fixed],
+                                self._outside(x)[bounded_free_states(system)]])
+        ref = dict(system.reference)
+        target = ref.get("target", ref.get("published"))
+        weight = self.options.penalty * max(1.0, abs(float(target)) if target is not None else 1.0)
+        return weight * jnp.sum(rows * rows)
 
 
 def make_jax(target: System | str, **options) -> Env:

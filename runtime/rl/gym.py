@@ -1,23 +1,12 @@
 """The Gymnasium adapter: one env (:class:`MyriadEnv`) and a vector env (:class:`MyriadVectorEnv`), both thin shells
-over the jit-compiled functional core (:mod:`myriad.runtime.rl.env`), and the ids ``myriad/<Name>-v0``.
+over the jit-compiled functional core (:mod:`myriad.runtime.rl.env`), and their ids: ``myriad/<Name>-v0`` for the
+shipped systems, ``myriad-spec/<Name>-<hash>-v0`` for any other (:func:`register`). Spaces, ids and the episode's
+end: README.md in this folder.
 
     import gymnasium, myriad.runtime.rl                        # importing registers myriad/VanDerPol-v0, ...
     env = gymnasium.make("myriad/VanDerPol-v0")
     env = myriad.runtime.rl.make("my/spec.yaml", steps=50)     # any spec; options are EnvOptions fields
     envs = gymnasium.make_vec("myriad/Pendulum-v0", num_envs=1024, vectorization_mode="vector_entry_point")
-
-Spaces are float32 ``Box``es. Actions are in [-1, 1] by default (``normalize_actions``; the map onto the control
-bounds is the core's, so the JAX env, this env and the vector env agree, and Gymnasium's checker, which inspects the
-unwrapped env, sees a normalised space); ``normalize_actions=False`` gives the control bounds in their own units, and
-``gymnasium.wrappers.RescaleAction(env, -1, 1)`` maps those back. A control without finite bounds needs
-``action_bound``: the env refuses to guess one. The observation space is the spec's state box plus [0, T] for the
-time to go, with float32's largest finite value where the spec gives no bound; the state bounds are constraints,
-not walls (see the core), so a policy that violates one is shown the state it reached.
-
-The episode ends with ``terminated`` at T, or ``truncated`` at ``max_steps``. No ``TimeLimit`` wrapper is registered:
-it would mark the step that reaches T as truncated too. The vector env resets in the same step
-(``AutoresetMode.SAME_STEP``): the observation that ended an episode is in ``info["final_obs"]`` (``_final_obs``
-marks the envs it is valid for).
 """
 
 from __future__ import annotations
@@ -33,12 +22,13 @@ import jax.numpy as jnp
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
 
 from ..data import batch_data
 from ..loader import load
 from ..system import System
 from ..systems import NAMES
-from .env import Env, EnvOptions
+from .env import Env, make_jax
 from .render import draw_traces
 
 __all__ = ["MyriadEnv", "MyriadVectorEnv", "make", "env_id", "register", "register_all"]
@@ -52,16 +42,14 @@ def env_id(name: str) -> str:
 
 
 def _core(system: System | str, options: dict) -> Env:
-    env = Env(system if isinstance(system, System) else load(system), EnvOptions(**options))
+    env = make_jax(system, **options)
     env.require_finite_controls("a Gymnasium action space cannot hold them")
     return env
 
 
-def _f32_box(lo: np.ndarray, hi: np.ndarray, shape: tuple[int, ...] | None = None) -> spaces.Box:
+def _f32_box(lo: np.ndarray, hi: np.ndarray) -> spaces.Box:
     lo = np.clip(np.asarray(lo, np.float64), -_F32_MAX, _F32_MAX).astype(np.float32)
     hi = np.clip(np.asarray(hi, np.float64), -_F32_MAX, _F32_MAX).astype(np.float32)
-    if shape is not None:
-        lo, hi = np.broadcast_to(lo, shape).copy(), np.broadcast_to(hi, shape).copy()
     return spaces.Box(lo, hi, dtype=np.float32)
 
 
@@ -121,16 +109,13 @@ class MyriadEnv(gymnasium.Env):
         self._over = False
         self._history: tuple[list, list, list] = ([], [], [])
 
-    def _obs(self, obs) -> np.ndarray:
-        return np.asarray(obs, dtype=np.float32)
-
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         key = jax.random.PRNGKey(int(self.np_random.integers(0, 2**31 - 1)))
         obs, self._state = self._reset_fn(key, self.data)
         self._over = False
         self._history = ([0.0], [np.asarray(self._state.x, np.float64)], [])
-        return self._obs(obs), {}
+        return np.asarray(obs, np.float32), {}
 
     def step(self, action):
         if self._state is None or self._over:
@@ -148,7 +133,7 @@ class MyriadEnv(gymnasium.Env):
         states.append(obs[:-1])
         controls.append(control)
         reward = values.pop("reward")
-        return self._obs(obs), reward, terminated, truncated, {**values, "control": control.copy()}
+        return np.asarray(obs, np.float32), reward, terminated, truncated, {**values, "control": control.copy()}
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -181,19 +166,16 @@ class MyriadVectorEnv(VectorEnv):
             raise ValueError("MyriadVectorEnv does not render; make single envs with render_mode='rgb_array'")
         self.core = _core(system, options)
         self.num_envs = num_envs
-        if params or x0 is not None:
-            self.data = batch_data(self.core.system, params, x0)
-            size = jax.tree.leaves(self.data)[0].shape[0]
-            if size != num_envs:
-                raise ValueError(f"params/x0 hold {size} envs, num_envs is {num_envs}")
-        else:
-            one = self.core.default_params()
-            self.data = jax.tree.map(lambda a: jnp.broadcast_to(a, (num_envs, *jnp.shape(a))), one)
+        if not params and x0 is None:  # batch_data needs a batch axis on something
+            x0 = np.broadcast_to(self.core.default_params().x0, (num_envs, self.core.system.n_states))
+        self.data = batch_data(self.core.system, params, x0)
+        size = jax.tree.leaves(self.data)[0].shape[0]
+        if size != num_envs:
+            raise ValueError(f"params/x0 hold {size} envs, num_envs is {num_envs}")
         self.single_action_space = _f32_box(*self.core.action_bounds)
         self.single_observation_space = _f32_box(*self.core.observation_bounds)
-        self.action_space = _f32_box(*self.core.action_bounds, shape=(num_envs, self.core.action_size))
-        self.observation_space = _f32_box(*self.core.observation_bounds,
-                                          shape=(num_envs, self.core.observation_size))
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
         self._reset_fn, self._step_fn = _batched(self.core)
         self._key = None
         self._state = None

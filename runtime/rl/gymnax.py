@@ -1,23 +1,10 @@
 """The functional environment in gymnax's shape: what gymnax-based trainers (rejax, PureJaxRL) train on.
 
-:class:`~myriad.runtime.rl.env.Env` already has gymnax's signatures (``reset(key, params)``,
-``step(key, state, action, params)``), but a gymnax trainer wants a ``gymnax.environments.environment.Environment``:
-a hashable object (gymnax jits ``step`` and ``reset`` with the env static) with ``default_params``, gymnax's spaces
-and a single ``done`` flag, and params that carry ``max_steps_in_episode``. :class:`GymnaxEnv` is that wrapper,
-adding nothing to the dynamics or the reward:
-
-    from rejax import PPO
-    from myriad.runtime.rl import make_jax
-    from myriad.runtime.rl.gymnax import GymnaxEnv
-
-    env = GymnaxEnv(make_jax("van_der_pol"))
-    algo = PPO.create(env=env, env_params=env.default_params, total_timesteps=100_000)
-
-* ``done`` is ``terminated | truncated``; gymnax's ``step`` resets on it (our own ``step_env`` never resets);
-* the params are :class:`GymnaxParams`: the env's :class:`~myriad.runtime.data.ProblemData` cast to ``dtype``
-  (float32 by default: rejax's running statistics are created in JAX's default dtype) and the episode length;
-* the action space is the env's action bounds (``[-1, 1]`` when actions are normalised), the observation space its
-  observation bounds, infinite sides clipped to the dtype's largest value (gymnax's ``Box`` samples from them).
+:class:`~myriad.runtime.rl.env.Env` already has gymnax's signatures, but a gymnax trainer wants a
+``gymnax.environments.environment.Environment``: a hashable object (gymnax jits ``step`` and ``reset`` with the env
+static) with ``default_params``, gymnax's spaces, a single ``done`` flag and params that carry
+``max_steps_in_episode``. :class:`GymnaxEnv` is that wrapper, adding nothing to the dynamics or the reward:
+``GymnaxEnv(make_jax("van_der_pol"))`` is what ``rejax.PPO.create(env=...)`` takes (``bench/rl_baselines.py``).
 
 Needs gymnax and flax (``pip install 'myriad-control[rl]'``, which installs rejax with them); importing this module
 without them raises ``ImportError``, and nothing else in :mod:`myriad.runtime.rl` imports it.
@@ -47,11 +34,14 @@ class GymnaxParams:
 
 
 class GymnaxEnv(environment.Environment):
-    """An :class:`~myriad.runtime.rl.env.Env` as a gymnax ``Environment`` (see the module docstring).
+    """An :class:`~myriad.runtime.rl.env.Env` as a gymnax ``Environment``: ``done`` is ``terminated | truncated``
+    (gymnax's ``step`` resets on it), infinite sides of the spaces are clipped to the dtype's largest value (gymnax's
+    ``Box`` samples from them).
 
     Args:
         env: the functional environment.
-        dtype: the float type of the params and the spaces (float32: what gymnax trainers compute in).
+        dtype: the float type of the params and the spaces (float32: rejax's running statistics are created in JAX's
+            default dtype).
     """
 
     def __init__(self, env: Env, dtype: Any = jnp.float32):

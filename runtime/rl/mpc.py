@@ -5,42 +5,14 @@
     ep = mpc.run(env.default_params())                 # one closed-loop episode
     ep.cost, normalized_score("van_der_pol", ep.cost)
 
-Every ``replan_every`` steps the policy re-solves the problem that is left, from the state it observes at step k
-over the remaining grid [t_k, T], and plays the plan's controls until the next re-plan (a shrinking horizon: the
-problems have a fixed final time). Each re-plan is warm-started from the previous plan, whose controls for the
-steps k..N-1 are exactly the shifted plan.
-
-**The planning problem** is single shooting on the environment's own grid: the decisions are the N controls, held
-over their steps (zero-order hold), and the model is the environment's step itself (same integrator, substeps and
-running-cost quadrature) with the planner's parameters, so on the nominal model the plan's cost is the episode's.
-Its terminal part is either the environment's own (``terminal="penalty"``: phi(x_N) plus the quadratic penalty on
-missed final values and final-state bounds, so the planner minimises exactly J = -return; always feasible) or the
-published single shooting's (``terminal="constraint"``: phi(x_N), and the missed final values and final-state
-bounds as constraint rows; a re-plan can then be infeasible under mismatch or noise). The penalty is finite, so
-the first may miss a final value by a little where that costs less than meeting it, and then beats the reference
-controls' env cost (Pendulum: 21.80 against 25.87, paying 2.06 of penalty for theta(T) 0.04 short; with
-``"constraint"`` 25.54, the final values met to 1e-15); measurements in ``bench/rl_baselines.py``'s output.
-
-**Why a fixed-size problem.** The transcriptions start at t = 0 with x(0) from the data and the spec's horizon,
-and an NLP's shapes are static: a problem shortened at every re-plan would compile a new program each time
-(N / replan_every compiles an episode). Here all N controls stay decisions and the start index k and start state
-x_k are *data*: the rollout starts at x_k, steps j < k leave the state and the cost untouched, and the controls
-already played (j < k) enter only through the decoupled term 1/2 sum_{j<k} ((u_j - u_j^prev) / s_u)^2, which is
-zero at the warm start and keeps IPOPT's Hessian regular there; it does not couple to the remaining decisions, so
-the minimiser over them is the shrinking-horizon problem's. One compiled program serves every re-plan of every
-episode of a system.
-
-**A failed re-plan** (IPOPT not converged, or a non-finite plan) is not used: the policy keeps playing the previous
-plan and counts the failure (``Episode.failures``).
-
-**Disturbances.** ``params`` of the planner may differ from the environment's (model mismatch; see
-:func:`mismatched_params`), and ``obs_noise`` adds ``obs_noise * s * N(0, 1)`` to the state the policy observes (s
-the state's nominal scale); the environment itself evolves with its own parameters and without noise.
+The design (the planning problem, why it has a fixed size, failed re-plans, disturbances): README.md in this
+folder.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Any, Literal
 
@@ -57,8 +29,6 @@ from .env import Env, EnvState
 
 __all__ = ["MPC", "MPCEpisode", "mismatched_params"]
 
-_NLPS: dict = {}  # (model env, terminal) -> its planning NLP
-
 
 @dataclasses.dataclass(frozen=True)
 class MPCEpisode:
@@ -66,7 +36,6 @@ class MPCEpisode:
 
     Attributes:
         cost: J = -return in the environment (its parameters, minimisation form): what ``normalized_score`` takes.
-        total: the return.
         controls: (N, m) the controls applied.
         states: (N + 1, n) the environment's true states.
         penalty: the part of ``cost`` that is the terminal penalty on missed final values and final-state bounds.
@@ -79,7 +48,6 @@ class MPCEpisode:
     """
 
     cost: float
-    total: float
     controls: np.ndarray
     states: np.ndarray
     penalty: float
@@ -104,8 +72,9 @@ def mismatched_params(env: Env, fraction: float, seed: int = 0) -> dict[str, Any
     return {**p, **{n: p[n] * (1.0 + fraction * s) for n, s in zip(names, signs)}}
 
 
+@functools.cache
 def _planning_nlp(model: Env, terminal: str) -> NLP:
-    """The planning problem of the module docstring; data ``ProblemData({"model": p, "k": k, "prev": (N, m)}, x_k)``."""
+    """The planning problem (README.md); data ``ProblemData({"model": p, "k": k, "prev": (N, m)}, x_k)``."""
     system = model.system
     N, m = model.options.steps, system.n_controls
     su = control_scale(system)
@@ -158,7 +127,7 @@ def _planning_nlp(model: Env, terminal: str) -> NLP:
 
 
 class MPC:
-    """A receding-horizon policy for ``env`` (see the module docstring).
+    """A receding-horizon policy for ``env`` (README.md in this folder: model-predictive control).
 
     Args:
         env: the environment the policy acts in (actions normalised or not: the plan is in controls and mapped).
@@ -184,10 +153,7 @@ class MPC:
         self.params = env.default_params(params).params
         # The planner's parameters are data, so MPCs that differ only in them (nominal, mismatched) share one NLP,
         # and with it IPOPT's compiled derivatives (the solver caches them per NLP object).
-        key = (self.model, terminal)
-        if key not in _NLPS:
-            _NLPS[key] = _planning_nlp(self.model, terminal)
-        self.nlp = _NLPS[key]
+        self.nlp = _planning_nlp(self.model, terminal)
         self._step = jax.jit(env.step_env)
 
     def initial_plan(self) -> np.ndarray:
@@ -250,6 +216,6 @@ class MPC:
             total, penalty = total + float(reward), penalty + float(info["penalty"])
             states.append(np.asarray(state.x))
             controls.append(plan[k].copy())
-        return MPCEpisode(cost=-total, total=total, controls=np.array(controls), states=np.array(states),
+        return MPCEpisode(cost=-total, controls=np.array(controls), states=np.array(states),
                           penalty=penalty, replans=replans, failures=failures, iterations=iterations,
                           solve_seconds=solve_s, compile_seconds=compile_s, wall_seconds=time.perf_counter() - start)

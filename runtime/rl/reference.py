@@ -1,24 +1,11 @@
-"""Reference scores: what trajectory optimisation, zero control and a random policy achieve in each shipped env.
+"""Reference scores: what trajectory optimisation, zero control and a random policy cost in each shipped env
+(README.md in this folder: how each is measured).
 
-    python -m myriad.runtime.rl --write      # regenerate reference_scores.json (all 18 systems: about 20 minutes)
-    python -m myriad.runtime.rl --check      # exit 1 when the shipped file is stale
-
-Every cost is ``J = -return`` of the default environment (``EnvOptions()``: 100 steps, Heun, zero-order hold,
-the final-value penalty), in minimisation form, so the three are measured alike:
-
-* ``optimal``: the controls of the best converged trajectory optimisation, played open loop. The candidates are the
-  reference table's (:mod:`myriad.runtime.bench`: the published single shooting, multiple shooting, trapezoidal,
-  Hermite-Simpson, and the forward-backward sweep where u* is stationary); each solution's control is sampled at the
-  middle of every env step (the step's mean for a piecewise-linear control on the same grid) and the lowest env
-  cost wins. Its setting, the solver's own cost and the re-simulated cost are kept beside it, and so are the played
-  controls, which the staleness test replays;
-* ``zero_control``: u = 0 clipped into the control bounds, every step;
-* ``random``: the mean over 100 episodes of controls drawn uniformly within the bounds at every step (seed 0).
+    myriad rl-reference --write      # regenerate reference_scores.json (all 18 systems: about 20 minutes)
+    myriad rl-reference --check      # exit 1 when the shipped file is stale
 
 ``normalized_score(system, J) = 100 (J_random - J) / (J_random - J_optimal)``: 0 is the random policy, 100 the
-optimiser's open-loop controls; an agent can pass 100 (the env's problem, zero-order hold on Heun's grid, is not
-exactly the one the transcriptions solve). Simple Case's control is unbounded: its envs use its default action bound
-(:data:`~myriad.runtime.rl.env.DEFAULT_ACTION_BOUNDS`), recorded in the file.
+optimiser's open-loop controls.
 """
 
 from __future__ import annotations
@@ -91,7 +78,7 @@ def _played_controls(env: Env, sol) -> np.ndarray:
     return np.stack([np.interp(mid, tu, us[:, j]) for j in range(us.shape[1])], axis=1)
 
 
-def compute(name: str, progress=None) -> dict[str, Any]:
+def compute(name: str) -> dict[str, Any]:
     """One system's record (solves every candidate: seconds to a minute)."""
     from ..bench import ALTERNATIVES, PUBLISHED_SETTING, run_bench
     from ..transcriptions import ForwardBackwardSweep
@@ -99,19 +86,18 @@ def compute(name: str, progress=None) -> dict[str, Any]:
     system = load(name)
     env = reference_env(system)
     settings = {t.label: t for t in (PUBLISHED_SETTING, *ALTERNATIVES, ForwardBackwardSweep(intervals=1000))}
-    (row,) = run_bench([name], progress=progress)
+    (row,) = run_bench([name])
     best = None
     for sol in (row.main, *row.alternatives):
         if not sol.converged:
             continue
         controls = _played_controls(env, sol)
-        cost = baseline_costs(system, controls)["optimal"]
-        if math.isfinite(cost) and (best is None or cost < best[0]):
-            best = (cost, sol, controls)
+        scores = baseline_costs(system, controls)
+        if math.isfinite(scores["optimal"]) and (best is None or scores["optimal"] < best[0]["optimal"]):
+            best = (scores, sol, controls)
     if best is None:
         raise RuntimeError(f"{name}: no transcription converged; no optimal reference")
-    cost, sol, controls = best
-    scores = baseline_costs(system, controls)
+    scores, sol, controls = best
     if not all(math.isfinite(v) for v in scores.values()):  # JSON has no NaN/inf, and a score needs both ends
         raise RuntimeError(f"{name}: a reference cost is not finite: {scores}")
     return {
@@ -151,19 +137,18 @@ def _dumps(doc: dict[str, Any]) -> str:
     return text + "\n"
 
 
-def write(path, names=NAMES, previous: dict[str, Any] | None = None, progress=print) -> dict[str, Any]:
+def write(path, names=NAMES, previous: dict[str, Any] | None = None) -> dict[str, Any]:
     """Compute ``names`` and write the file; the other shipped systems keep their ``previous`` records."""
     from ..atomic import atomic_write_text
 
     fresh = {}
     for name in names:
         fresh[name] = r = compute(name)
-        if progress:
-            progress(f"{name:18s} optimal {r['optimal']['cost']:.6g} ({r['optimal']['transcription']}) "
-                     f"zero {r['zero_control']['cost']:.6g} random {r['random']['cost']:.6g}")
+        print(f"{name:18s} optimal {r['optimal']['cost']:.6g} ({r['optimal']['transcription']}) "
+              f"zero {r['zero_control']['cost']:.6g} random {r['random']['cost']:.6g}")
     previous = previous or {}
     systems = {n: fresh.get(n, previous.get(n)) for n in NAMES if n in fresh or n in previous}
-    doc = {"format": FORMAT, "generated_by": "python -m myriad.runtime.rl --write", "env": _env_record(),
+    doc = {"format": FORMAT, "generated_by": "myriad rl-reference --write", "env": _env_record(),
            "systems": systems}
     atomic_write_text(path, _dumps(doc))
     return doc
@@ -171,7 +156,7 @@ def write(path, names=NAMES, previous: dict[str, Any] | None = None, progress=pr
 
 @functools.cache
 def reference_scores() -> dict[str, Any]:
-    """The shipped reference scores (the parsed JSON; see the module docstring)."""
+    """The shipped reference scores (the parsed JSON)."""
     return json.loads(resources.files(__package__).joinpath(_FILE).read_text(encoding="utf-8"))
 
 

@@ -17,7 +17,7 @@ from myriad.runtime.systems import NAMES
 def test_reference_scores_are_fresh_for_every_shipped_system():
     doc = reference_scores()
     assert list(doc["systems"]) == list(NAMES)
-    assert stale(doc) == [], "rerun: python -m myriad.runtime.rl --write"
+    assert stale(doc) == [], "rerun: myriad rl-reference --write"
 
 
 def test_staleness_is_detected():
@@ -58,7 +58,7 @@ def test_normalized_score_is_0_at_random_and_100_at_the_optimum():
 
 
 def test_the_command_refuses_an_unknown_system(capsys):
-    from myriad.runtime.rl.cli import main
+    from myriad.runtime.cli import main
 
-    assert main(["--write", "--systems", "no_such_system"]) == 2
+    assert main(["rl-reference", "--write", "--systems", "no_such_system"]) == 2
     assert "no_such_system" in capsys.readouterr().err
