@@ -32,11 +32,10 @@ class E2EConfig:
 
     Attributes:
         model: ``"parametric"`` (the spec's learnable parameters, from their guesses) or ``"node"`` (a Neural ODE).
-        adjoint: how the plan is differentiated (:mod:`myriad.runtime.solvers.adjoint`): ``Unrolled(K)``, reverse
-            mode through K warm-started extragradient steps, or ``Implicit()``, the implicit function theorem at a
-            converged solve (``Implicit(fallback_steps=K)``: K of the unrolled fallback, ``on_failure="unrolled"``);
-            K = None is 10 for a parametric model, 5 for a Neural ODE, as published. A name (``"unrolled"``,
-            ``"implicit"``) is read as that adjoint with the default K.
+        adjoint: how the plan is differentiated: ``Unrolled(K)``, reverse mode through K warm-started extragradient
+            steps, or ``Implicit()``, the implicit function theorem at a converged solve (``Implicit(fallback_steps=
+            K)``: K of the unrolled fallback); K = None is 10 for a parametric model, 5 for a Neural ODE, as
+            published. A name (``"unrolled"``, ``"implicit"``) is read as that adjoint with the default K.
         iterations: the most outer iterations (one optimiser update each); None: 1200 for a parametric model, 600
             for a Neural ODE.
         optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
@@ -46,39 +45,31 @@ class E2EConfig:
         loss: imitate the expert's ``"controls"`` (published: mean over nodes of ||u_t - u*_t||^2), its
             ``"states"`` (the model's planned states against the expert's), or ``"both"`` (the sum).
         on_failure: implicit mode, when the solve did not converge or the KKT solve failed: ``"skip"`` the update,
-            fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate), or ``"backtrack"``: go back
-            to the last parameters whose plan converged and take that step again at half the length (a step can
-            make the model's planning problem infeasible, e.g. a learned predator population that must go negative;
-            skipping would leave the learner there). Each is counted.
-        learn_dynamics: learn the model's parameters (False: keep them at ``model_values`` or the truth; with
-            ``learn_cost`` this is inverse optimal control).
+            fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate), or ``"backtrack"``: take the
+            last step whose plan converged again at half the length (a step can make the model's planning problem
+            infeasible; skipping would leave the learner there). Each is counted.
+        learn_dynamics: learn the model's parameters (False, with ``learn_cost``: inverse optimal control).
         learn_cost: names of the spec's cost parameters to learn (their start: ``cost_guess``).
         cost_guess: ``((name, value), ...)``, the starting values of ``learn_cost`` (default: the spec's value / 2).
         hidden, activation: the Neural ODE's network.
         planner: the :class:`Extragradient` whose step rules, penalty, bounds and scaling the unrolled planner uses
             (None: :func:`~.planner.default_planner_solver`).
         implicit_solver: the solver run to tolerance in implicit mode: an :class:`Extragradient` (None: tol 1e-9,
-            20,000 iterations) or an :class:`InteriorPoint` (Newton steps: tens of iterations where the extragradient
-            needs thousands, e.g. on problems with required final values; docs/notes/e2e-node.md).
+            20,000 iterations) or an :class:`InteriorPoint` (much faster where final values are required).
         checkpoint_every: iterations between checkpoints (with a checkpoint folder); None: 10 per run.
         snapshot_every: iterations between stored plans for the training figure; None: 40 per run.
         seed: the Neural ODE's initialisation (and the system-identification fit's, with ``init="sysid"``).
         init: where theta starts: ``"guess"`` (the spec's guesses; a Neural ODE's random weights, normalised by the
-            bounds), ``"sysid"`` (fitted first by system identification, :func:`~myriad.runtime.sysid.run.run_sysid`
-            with ``SysidConfig(model, hidden, activation, seed, rounds=1)``: "the same objects as system
-            identification"), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
-            ``run_e2e(theta0=...)`` starts from given parameters instead.
+            bounds), ``"sysid"`` (fitted first by system identification, ``SysidConfig(model, hidden, activation,
+            seed, rounds=1)``), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
         soft_state_bounds: None (the spec's final-state bounds are hard when planning the model), or c > 0: plan the
             model with elastic final-state bounds, penalty ``c * max(1, |J*|)`` per unit of scaled violation (J*: the
-            expert's cost; :class:`~myriad.runtime.transcriptions.SingleShooting`'s ``soft_state_bounds``). A learned
-            model need not keep a state inside its bounds where the true one does by itself (a predator population
-            that the true equation keeps positive); with hard bounds such a model's plan is infeasible. c = 10 leaves
-            the true problem's optimum unchanged on all 11 specs with bounded final states (to 1.1e-7 of the cost,
-            docs/notes/e2e-node.md). They apply to the plans solved to tolerance (the implicit solve, the judged
-            plan), not to the unrolled planner, whose K steps cannot fail. Single shooting only.
+            expert's cost). A learned model need not keep a state inside its bounds where the true one does by itself,
+            and with hard bounds its plan is infeasible; c = 10 leaves the true optimum unchanged. They apply to the
+            plans solved to tolerance, not to the unrolled planner, whose K steps cannot fail. Single shooting only.
         reaim: after training, re-aim the converged plan at the required final values at most this many times from
-            observed runs of the true system (:mod:`~myriad.runtime.sysid.reaim`); None: 6 for a Neural ODE, 0 for a
-            parametric model. It changes only the judged plan, not the training (nor a checkpoint's identity).
+            observed runs of the true system (:mod:`~myriad.runtime.learn.reaim`); None: 6 for a Neural ODE, 0 for a
+            parametric model. It changes only the judged plan, not the training.
     """
 
     model: str = "parametric"

@@ -13,9 +13,9 @@ reverse mode keeps only the carry of every step and recomputes one step's intern
 time grow linearly in K and no Jacobian is ever formed (the published code chained dense forward-mode Jacobians).
 The carry is the whole solver state, so warm starting continues the solve where it stopped.
 
-The default primal rule is AMSGrad(0.1) with ``eps_root = 1e-16``: the solver's default rule, except that the square
-root of the second moment is never taken at an exact 0, where its derivative is infinite (a gradient component that
-is exactly zero, e.g. a control that nothing depends on, would otherwise give 0 * inf = NaN in reverse mode).
+The default primal rule is the solver's, AMSGrad(0.1), with ``eps_root = 1e-16``: the square root of the second
+moment is then never taken at an exact 0, where its derivative is infinite (a gradient component that is exactly
+zero, e.g. a control that nothing depends on, would otherwise give 0 * inf = NaN in reverse mode).
 """
 
 from __future__ import annotations
@@ -68,12 +68,9 @@ class UnrolledPlanner:
         return state.point.kkt
 
     def run(self, state: PlannerState, data: Any, steps: int, limit: Any = None) -> PlannerState:
-        """``steps`` (static) extragradient steps from ``state`` on the problem of ``data``; differentiable in
-        ``data`` and ``state`` by reverse and forward mode.
-
-        ``limit`` (optional, may be traced): take only the first ``min(limit, steps)`` steps, the rest are the
-        identity; one compiled program then serves every K up to ``steps`` (a sweep over K, at the cost of K =
-        ``steps``)."""
+        """``steps`` (static) extragradient steps from ``state`` on the problem of ``data``, differentiable in both;
+        ``limit`` (may be traced): only the first ``min(limit, steps)``, so one program serves every K up to
+        ``steps``."""
         iterate = self.stepper.iterate
 
         @jax.checkpoint

@@ -25,6 +25,7 @@ from ..learn.evaluate import Evaluation, evaluate
 from ..learn.identity import arrays_id, tree_id
 from ..learn.loop import Step, Stop, check_run, checkpoint_path
 from ..learn.models import Parametric, make_model
+from ..learn.models.base import as_float
 from ..loader import load
 from ..solution import Solution, json_number
 from ..solve import solve
@@ -45,16 +46,12 @@ class E2EReport:
     """The outcome of :func:`run_e2e`.
 
     Attributes:
-        theta: the model's final parameters; learned / true: the parametric model's values by name (and the learned
-            cost weights, keyed ``cost.<name>``), else empty.
-        history: ``[(iteration, imitation_loss, planner_kkt), ...]``, one row per iteration (``iteration`` counts
-            from 0; the loss is that of the plan of the parameters before the iteration's update).
+        learned, true: the parametric model's values by name (and the learned cost weights, ``cost.<name>``).
+        history: ``[(iteration, imitation_loss, planner_kkt), ...]`` (the loss of the plan before the update).
         snapshots: ``[(iteration, controls, states), ...]``, plans kept for the training figure.
         counts: iterations per gradient source (``step.USED``).
-        status: ``Stop.COMPLETED``, ``NON_FINITE`` or ``STALLED`` (backtracking cut the step below
-            ``MIN_STEP_SCALE``: the planner could not solve any nearby model).
+        status: ``Stop.COMPLETED``, ``NON_FINITE`` or ``STALLED`` (the planner could not solve any nearby model).
         compile_count: traces of the iteration in this call (1 on a fresh configuration, 0 when cached).
-        init_seconds: the system-identification fit that started the run (``init="sysid"``), else 0.
     """
 
     system: str
@@ -114,7 +111,7 @@ def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = Non
         except ValueError as exc:
             raise ValueError(f"{system.name}: theta0 does not fit the {config.model} model configured here (hidden "
                              f"{config.hidden}, activation {config.activation!r}): {exc}") from None
-        theta = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), theta0)
+        theta = as_float(theta0)
     true = {}
     if isinstance(model, Parametric):
         true = {k: float(v) for k, v in model.true_params().items()}
@@ -200,19 +197,15 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
 
     Args:
         system: the true system (or its name or spec path).
-        config: an :class:`E2EConfig`.
         transcription: the planning transcription (default ``SingleShooting()``, the published setting).
-        checkpoint_dir: a folder for ``checkpoint.npz`` (+ ``.json``); None: none.
-        resume: continue from the checkpoint there (an error names what differs if it belongs to another run).
-        progress: a tqdm bar with the loss on stderr; None: only when stderr is a terminal.
+        checkpoint_dir, resume: a folder for checkpoints, and whether to continue from the one there.
+        progress: True: a tqdm bar on stderr; False: nothing; None: a bar on a terminal, else a line every 10 s.
         expert: the expert's solution on the transcription's grid (default: the true optimum, IPOPT), or a
-            system-identification dataset file whose first training trajectory is the expert
-            (:func:`~myriad.runtime.e2e.expert.expert_from_dataset` picks another).
+            system-identification dataset file whose first training trajectory is the expert.
         theta0: the model's starting parameters (e.g. a system-identification report's ``theta``); default: as
             ``config.init`` says (a resumed run takes them from its checkpoint and fits nothing).
 
-    Raises:
-        TypeError, ValueError: bad arguments, all before any work; ``CheckpointMismatch`` on a foreign checkpoint.
+    Bad arguments raise TypeError or ValueError before any work; a foreign checkpoint ``CheckpointMismatch``.
     """
     if not isinstance(config, E2EConfig):
         raise TypeError(f"run_e2e: config must be an E2EConfig, got {type(config).__name__}")

@@ -1,9 +1,6 @@
-"""Evaluate a learned model the way it is meant to be used: plan on it, then apply the plan to the true system.
-
-The planned controls (the learned model's optimum in the chosen setting, by default the published one) are simulated
-in the *true* dynamics, with the planning grid's own integrator (the published measure, comparable with the true
-model's optimum in the same setting) and with the adaptive integrator (closer to the continuous system). A plan
-that did not converge is reported as such, with the solver's reason, never as a success.
+"""Evaluate a learned model the way it is meant to be used: plan on it, then apply the plan to the true system (with
+the planning grid's own integrator, the published measure, and with the adaptive one). A plan that did not converge
+is reported as such, with the solver's reason, never as a success.
 """
 
 from __future__ import annotations
@@ -32,12 +29,10 @@ class Evaluation:
     """A plan on the learned model, judged on the true system.
 
     Attributes:
-        plan: the solution on the learned model (its cost is the model's own prediction).
-        optimum: the true model's solution in the same setting (end-to-end learning's expert).
+        plan, optimum: the solution on the learned model (its cost is the model's own prediction) and the true
+            model's in the same setting (end-to-end learning's expert).
         achieved_cost, achieved_defect: the planned controls simulated in the true dynamics on the planning grid
-            with the setting's integrator (Heun for the published setting): comparable with ``optimum.cost``.
-        achieved_simulated_cost, achieved_simulated_defect: the same controls with the adaptive integrator.
-        converged: the plan and the optimum both converged; ``message`` says why not.
+            with the setting's integrator: comparable with ``optimum.cost``; ``achieved_simulated_*`` adaptively.
         plan_imitation_loss: the published imitation loss of the plan, mean over nodes of ||u - u*||^2 against the
             optimum's controls, when both are on one grid (NaN otherwise).
         reaim: the :class:`~.reaim.Reaim` that chose ``plan`` (``evaluate(reaim=K)``), else None.
@@ -92,11 +87,8 @@ def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=Non
     """Plan on ``model.as_system(theta)``, apply the plan to ``model.system``, and compare with the true optimum.
 
     Args:
-        model: the model; ``model.system`` is the true system.
-        theta: the learned parameters.
         transcription, solver: the planning setting (default: the published one, single shooting with Heun on
-            100 intervals and IPOPT); the true optimum is computed in the same setting unless ``optimum`` is given.
-        optimum: the true model's solution (or an expert's), when already known (saves a solve).
+            100 intervals and IPOPT), also the true optimum's unless ``optimum`` (or an expert) is given.
         plan: a plan on the model already made in this setting (e.g. re-aimed, :mod:`.reaim`), to judge instead of
             planning again.
         params: the learned system's parameters for planning (``{"spec": ..., "model": theta}``, e.g. with learned

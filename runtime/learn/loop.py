@@ -55,15 +55,9 @@ class Learner(Protocol):
 
 def train(learner: Learner, *, start: int, end: int, every: int | None, progress: bool | None,
           exhausted: Stop) -> tuple[Stop, str]:
-    """Run ``learner.step(index)`` for index = start, ..., end - 1 until one says stop; ``(stop, message)``.
-
-    Args:
-        start, end: the steps already done (a resumed run's) and the budget.
-        every: checkpoint after every this many steps (also after the last step and at a successful stop);
-            None: never.
-        progress: a tqdm bar on stderr; None: only when stderr is a terminal.
-        exhausted: the stop to report when the budget ran out.
-    """
+    """Run ``learner.step(index)`` for index = ``start`` (a resumed run's steps done), ..., ``end`` - 1 until one
+    says stop; ``(stop, message)``, ``exhausted`` when the budget ran out. Checkpoint after every ``every`` steps (also
+    after the last step and at a successful stop; None: never); ``progress`` as :func:`.progress.progress_meter`."""
     with progress_meter(progress, end, initial=start, desc=learner.desc, unit=learner.unit) as meter:
         for index in range(start, end):
             step = learner.step(index)

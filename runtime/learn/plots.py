@@ -17,13 +17,8 @@ def plot_loss(history: Sequence[tuple[int, float, float]], path: str | os.PathLi
               ylabel: str | None = "trajectory loss (mean squared error)", floor: float | None = None,
               second_alpha: float | None = None) -> str:
     """``history`` rows ``(step, first, second)``: ``first`` against ``step``, and ``second`` too when it has a
-    positive finite value (a validation loss; a planner's residual, 0 when it has none).
-
-    Args:
-        labels, xlabel, ylabel: the legend's two entries and the axes' labels (None: no y label).
-        floor: draw values below it at it (an exact 0 stays on a log axis); None: as they are.
-        second_alpha: the second curve's transparency (a secondary measure drawn lighter).
-    """
+    positive finite value (a validation loss; a planner's residual, 0 when it has none), drawn ``second_alpha``
+    lighter. ``floor``: draw values below it at it (an exact 0 stays on a log axis)."""
     plt = pyplot()
     h = np.asarray(history, dtype=float).reshape(-1, 3)
     first, second = (h[:, i] if floor is None else np.maximum(h[:, i], floor) for i in (1, 2))

@@ -1,19 +1,14 @@
 """Terminal re-aiming: correct an open-loop plan's final-state miss with a few observed runs of the true system.
 
 A plan on a learned model meets the required final values *in the model*; in the true system it misses them by the
-model's error along the plan (0.01-0.1 on the 2-4-state systems after the rounds of :mod:`.run`). Re-aiming is
-iterative learning control on the target: run the plan on the true system and observe the final state (with the
-dataset's observation noise, like every other datum), then plan again on the same model aimed at
+model's error along the plan. Re-aiming is iterative learning control on the target: observe the plan's final state
+in the true system (with the dataset's observation noise), then plan again on the same model aimed at
 
     x_final - aim,   aim <- aim + (observed x(T) - x_final)       (required final states only),
 
-so that the model's own error along the new plan, assumed close to the last one's, is cancelled. The plan with the
-smallest observed miss is kept (each candidate is observed once; the last one too), so re-aiming never returns a
-plan it saw miss by more than the one it started from. A re-aimed plan that does not converge ends the loop with
-the best plan so far, and says so.
-
-It converges once the model is right near the plan, not monotonically, and diverges on a model whose terminal
-sensitivities are wrong, which the "smallest observed miss" rule absorbs (docs/notes/node-training.md, "Re-aiming").
+so that the model's own error along the new plan, assumed close to the last one's, is cancelled. It does not converge
+monotonically (and diverges on a model whose terminal sensitivities are wrong), so the plan with the smallest
+observed miss is kept: never one worse than the start (docs/notes/node-training.md, "Re-aiming").
 """
 
 from __future__ import annotations
@@ -39,15 +34,9 @@ def observe(system: Any, sampling: Sampling, controls: Any, seed: int) -> Trajec
 
 @dataclasses.dataclass(frozen=True)
 class Reaim:
-    """The outcome of :func:`reaim`.
-
-    Attributes:
-        plan: the kept plan (on the model aimed at ``aim``; its cost is the model's prediction).
-        aim: the offset the kept plan was aimed with (zeros: the original plan).
-        misses: the observed max |x_i(T) - x_final,i| of every plan tried, the original first.
-        kept: the index of the kept plan in ``misses``.
-        message: what happened, for the report.
-    """
+    """The outcome of :func:`reaim`: the kept ``plan`` (on the model aimed at ``aim``, zeros for the original), the
+    observed max |x_i(T) - x_final,i| of every plan tried (``misses``, the original first), the index of the kept one
+    and a ``message`` for the report."""
 
     plan: Solution
     aim: np.ndarray

@@ -37,18 +37,12 @@ def float_dtype() -> Any:
 
 @dataclasses.dataclass(frozen=True)
 class AbstractModel(abc.ABC):
-    """A learnable model of a system's dynamics (concrete models: frozen, hashable dataclasses).
-
-    Attributes:
-        system: the true :class:`~myriad.runtime.system.System` being modelled; its horizon, x0, bounds, required
-            final values and costs are those of every :class:`LearnedSystem` built from the model.
+    """A learnable model of the true ``system``'s dynamics (concrete models: frozen, hashable dataclasses).
 
     Class attributes:
-        label: the model's one name (``"parametric"``, ``"node"``): its key in ``MODELS``, the configurations' and
-            the commands' ``model``, and ``LearnedSystem.model_label``.
+        label: the model's one name: its key in ``MODELS``, the configurations' and commands' ``model``.
         spec_form: True when the vector field *is* the spec's dynamics at some parameters (see
-            :meth:`spec_form_params`), so the compiler's derivative artefacts (Jacobians, costates, u*) apply; a
-            ``LearnedSystem`` of any other model derives Jacobians and costates by autodiff and has no u*.
+            :meth:`spec_form_params`), so the compiler's derivative artefacts (Jacobians, costates, u*) apply.
     """
 
     system: System
