@@ -46,6 +46,8 @@ def main() -> None:
         print(f"{name:18s} {sol.cost:12.6g} {system.reference.get('target', float('nan')):10.6g} "
               f"{'yes' if ok else 'NO':>5s} {cold:7.2f} {sol.compile_seconds:9.2f} {sol.solve_seconds:7.3f} "
               f"{warm:7.3f}", flush=True)
+        if sol.accuracy_warning:  # only where the discretised and re-simulated answers disagree
+            print(f"  warning: {name}: {sol.accuracy_warning}", flush=True)
     cold_total = sum(r[2] for r in rows)
     warm = sorted(r[3] for r in rows)
     print()
