@@ -12,6 +12,8 @@ r_x = x_max - x_min (elementwise) and s = spread * r_u:
 - states: the true dynamics f(x, u, t, p_spec) integrated node to node by ``Sampling.integrator`` (Heun by default,
   the same states as :func:`~myriad.runtime.simulate.simulate`) under the piecewise-linear control;
 - observation: y_k = clip(x_k + N(0, (noise r_x)^2)) if noise > 0; with noise = 0 the rollout itself, unclipped.
+  With ``noise_scale="spread"``, r_x,i is instead the spread max - min of state i over all the noise-free
+  trajectories drawn together: no bounds needed, and noise <= 1 still means noise no wider than what it observes.
 
 One jit-compiled, vmapped program makes all trajectories (train, then validation, then test; trajectory i from row i
 of one uniform draw from ``key(seed)``): a seed fixes every bit. A scheme needing a finite bound the system lacks
@@ -39,8 +41,8 @@ from ..integrators import INTEGRATORS, AbstractIntegrator, Heun, rollout
 from ..loader import load
 from ..system import System, UnsupportedFeature
 
-__all__ = ["Sampling", "Trajectories", "Dataset", "check_source", "dataset_id", "make_dataset", "save_dataset",
-           "load_dataset"]
+__all__ = ["Sampling", "Trajectories", "Dataset", "check_source", "dataset_id", "make_dataset", "sampling_scales",
+           "save_dataset", "load_dataset"]
 
 SCHEMES = ("random_walk", "uniform", "around")
 FORMAT, VERSION = "myriad.sysid.dataset", 1  # the name predates the kit; kept, so older files load
@@ -61,7 +63,10 @@ class Sampling:
         spread: random-walk step std and "around" perturbation std, as a fraction of the control range.
         x0_std: std of the start-state perturbation: absolute, or a fraction of |x0| with ``x0_relative``.
         x0_relative: see ``x0_std``; a state with x0 = 0 then uses a fraction of its range.
-        noise: observation-noise std as a fraction of the state range (then clipped to the bounds); 0: none.
+        noise: observation-noise std as a fraction of the state range (then clipped to the bounds), in [0, 1]; 0:
+            none.
+        noise_scale: what ``noise`` is a fraction of: "range" (x_max - x_min, the published unit) or "spread" (each
+            state's spread in the noise-free data: the unit for a state without finite bounds).
         intervals: N, the number of grid intervals (N + 1 nodes).
         integrator: the one-step method (``Adaptive()`` allowed: it then integrates each interval adaptively).
         smooth: smooth the controls with the published kernel (two passes).
@@ -72,6 +77,7 @@ class Sampling:
     x0_std: float = 0.1
     x0_relative: bool = False
     noise: float = 0.0
+    noise_scale: str = "range"
     intervals: int = 100
     integrator: AbstractIntegrator = Heun()
     smooth: bool = False
@@ -84,6 +90,9 @@ class Sampling:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"Sampling: {name} must be a finite number >= 0, got {v!r}")
             object.__setattr__(self, name, float(v))
+        if self.noise > 1 or self.noise_scale not in ("range", "spread"):
+            raise ValueError(f"Sampling: noise must be at most 1 (a fraction of the state's {self.noise_scale}) and "
+                             f"noise_scale 'range' or 'spread', got {self.noise!r} and {self.noise_scale!r}")
         for name in ("x0_relative", "smooth"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"Sampling: {name} must be True or False, got {getattr(self, name)!r}")
@@ -176,34 +185,37 @@ def _frozen(a: Any) -> np.ndarray:
     return a
 
 
-def _scales(system: System, s: Sampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The control-step, start and noise standard deviations; raises on a bound the sampling needs but lacks."""
+def sampling_scales(system: System, s: Sampling) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The control-step, start and noise (``noise_scale="range"``) standard deviations; ``ValueError`` naming the
+    state or control and the fixes where the sampling needs a bound the system lacks."""
     a = system.arrays()
     ulo, uhi, xlo, xhi, x0 = a["u_lower"], a["u_upper"], a["x_lower"], a["x_upper"], a["x0"]
-    needs = []  # (kind, names, lower, upper, indices, why)
+    needs = []  # (kind, names, lower, upper, indices, why, the fix that needs no bound)
     if s.controls != "around" or s.spread > 0:
         what = {"random_walk": "draws u_0 from U(u_min, u_max) and steps with std spread * (u_max - u_min)",
                 "uniform": "draws u from U(u_min, u_max)",
                 "around": f"with spread={s.spread} perturbs with std spread * (u_max - u_min)"}[s.controls]
         needs.append(("control", system.control_names, ulo, uhi, range(system.n_controls),
-                      f"controls={s.controls!r} {what}"))
+                      f"controls={s.controls!r} {what}", ""))
     if s.x0_relative and s.x0_std > 0:
         needs.append(("state", system.state_names, xlo, xhi, np.flatnonzero(x0 == 0),
-                      "x0_relative=True perturbs a state with x0 = 0 by x0_std * (x_max - x_min)"))
-    if s.noise > 0:
+                      "x0_relative=True perturbs a state with x0 = 0 by x0_std * (x_max - x_min)",
+                      ", or perturb the start by x0_std itself: x0_relative=False"))
+    if s.noise > 0 and s.noise_scale == "range":
         needs.append(("state", system.state_names, xlo, xhi, range(system.n_states),
-                      f"noise={s.noise} is a fraction of the state range x_max - x_min"))
-    for kind, names, lo, hi, indices, why in needs:
+                      f"noise={s.noise} is a fraction of the state range x_max - x_min",
+                      ", or take the noise as a fraction of each state's spread in the data: noise_scale='spread'"))
+    for kind, names, lo, hi, indices, why, fix in needs:
         for i in indices:
             bad = [f"{side} bound {v[i]}" for side, v in (("lower", lo), ("upper", hi)) if not np.isfinite(v[i])]
             if bad:
                 raise ValueError(f"{system.name}: {why}, but {kind} `{names[i]}` has {' and '.join(bad)}; give "
-                                 f"`{names[i]}` finite bounds in a copy of the spec, or sample without needing them")
+                                 f"`{names[i]}` finite bounds in a copy of the spec{fix}")
     u_scale = s.spread * (uhi - ulo) if s.spread > 0 else np.zeros_like(ulo)
     x0_scale = np.full_like(x0, s.x0_std)
     if s.x0_relative:  # (the range is only selected where x0 = 0, and x0_std = 0 must not make 0 * inf)
         x0_scale = np.where(x0 != 0, s.x0_std * np.abs(x0), s.x0_std * (xhi - xlo) if s.x0_std > 0 else 0.0)
-    noise_scale = s.noise * (xhi - xlo) if s.noise > 0 else np.zeros_like(xlo)
+    noise_scale = s.noise * (xhi - xlo) if s.noise > 0 and s.noise_scale == "range" else np.zeros_like(xlo)
     return u_scale, x0_scale, noise_scale
 
 
@@ -240,12 +252,15 @@ def _generate(system: System, s: Sampling, batch: int, key, around, u_scale, x0_
         u = _smooth(u) if s.smooth else u
         x0 = jnp.clip(a["x0"] + z(wx) * x0_scale, xlo, xhi)
         f = lambda x, uu, t: system.dynamics(x, uu, t, params)  # noqa: E731
-        xs = rollout(s.integrator, f, x0, 0.0, float(system.horizon) / N, u)
-        if s.noise > 0:
-            xs = jnp.clip(xs + z(wn) * noise_scale, xlo, xhi)
-        return u, xs
+        return u, rollout(s.integrator, f, x0, 0.0, float(system.horizon) / N, u), z(wn)
 
-    return jax.vmap(one)(w)
+    us, xs, zn = jax.vmap(one)(w)
+    if s.noise > 0:
+        if s.noise_scale == "spread":  # over the finite values (trajectories that blew up are reported as such)
+            finite = jnp.where(jnp.isfinite(xs), xs, jnp.nan)
+            noise_scale = s.noise * (jnp.nanmax(finite, axis=(0, 1)) - jnp.nanmin(finite, axis=(0, 1)))
+        xs = jnp.clip(xs + zn * noise_scale, xlo, xhi)
+    return us, xs
 
 
 def make_dataset(system: System | str | os.PathLike, sampling: Sampling = Sampling(), *,
@@ -286,7 +301,7 @@ def make_dataset(system: System | str | os.PathLike, sampling: Sampling = Sampli
         if around.shape != (N + 1, m) or not np.all(np.isfinite(around)):
             raise ValueError(f"{system.name}: around must be finite controls of shape ({N + 1}, {m}); got shape "
                              f"{around.shape}{'' if np.all(np.isfinite(around)) else ' with NaN/inf values'}")
-    scales = _scales(system, sampling)  # every bound check, before any work
+    scales = sampling_scales(system, sampling)  # every bound check, before any work
     us, xs = map(np.asarray, _generate(system, sampling, sum(sizes), jax.random.key(seed), around, *scales))
     bad = np.flatnonzero(~np.all(np.isfinite(xs), axis=(1, 2)) | ~np.all(np.isfinite(us), axis=(1, 2)))
     if bad.size:

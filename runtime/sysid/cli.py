@@ -6,6 +6,7 @@ the planning failed (with the reason on stderr).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -38,8 +39,6 @@ def add_parser(sub) -> None:
 
 def read_config(args):
     """The :class:`~myriad.runtime.sysid.run.SysidConfig` of the arguments (``ValueError``: a usage error)."""
-    import dataclasses
-
     from ..configs import from_args
     from .polish import PolishConfig
     from .run import SysidConfig
@@ -55,6 +54,7 @@ def read_config(args):
 
 def run(args) -> int:
     from ..configs import usage_message
+    from ..learn.dataset import sampling_scales
     from .run import SysidConfig, failed, run_sysid
 
     if error := first_error(args):
@@ -69,6 +69,10 @@ def run(args) -> int:
     if config.model == "parametric" and not system.learnable:
         return usage("sysid", f"{system.name} declares no learnable parameters; use --model node, or mark "
                               f"parameters `learnable: true` (with a `guess`) in its spec")
+    try:  # a bound the sampling needs and the spec lacks: a usage error, before any work
+        sampling_scales(system, dataclasses.replace(config.sampling, noise=config.noise))
+    except ValueError as exc:
+        return usage("sysid", f"{exc} (a sampling field on the command line: --set sampling.FIELD=VALUE)")
     report = run_sysid(system, config, checkpoint_dir=args.checkpoint, resume=args.resume)
     rec = report.record()
     print(f"{report.system}: {config.model} model by {config.method}, {report.train_seconds:.1f} s of fitting "

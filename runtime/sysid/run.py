@@ -49,7 +49,8 @@ class SysidConfig:
             trajectory loss with optax; the only choice for Neural ODEs).
         trajectories: training trajectories per dataset (validation and test: ``max(3, trajectories // 3)`` each).
         rounds: datasets in sequence (default: 6 for a Neural ODE, 1 for a parametric model).
-        noise: observation noise as a fraction of the state range.
+        noise: observation noise as a fraction of the state range, at most 1 (``sampling.noise_scale="spread"``:
+            of each state's spread in the data, for states without finite bounds).
         seed: everything random derives from it (same seed, same result on CPU).
         hidden, activation: the Neural ODE's network (default 2 x 100, tanh; the published "sigmoid" is available).
         fit: the optimiser settings for ``method="adam"``; None: :func:`node_fit_config` for a Neural ODE (the recipe
@@ -65,6 +66,11 @@ class SysidConfig:
         epochs: Adam's most epochs in the model's own recipe, the default ``fit`` (:func:`node_fit_config`
             for a Neural ODE, ``FitConfig`` otherwise); None: the recipe's (1000). With ``fit`` given, it must say
             the same.
+        max_param_error: a parametric fit fails (exit 1) when a learned parameter is off the value the data were
+            made with by more than this fraction and by more than 3 of its standard errors (what the data's noise
+            explains; least squares only), unless the data cannot identify it; None: no check.
+        max_gap: the experiment fails (exit 1) when the plan costs more than this fraction above the true optimum
+            on the true system (the record's ``relative_gap``); None: no bound.
     """
 
     model: str = "parametric"
@@ -81,6 +87,8 @@ class SysidConfig:
     polish: PolishConfig | str | None = "default"
     reaim: int | None = None
     epochs: int | None = None
+    max_param_error: float | None = 0.05
+    max_gap: float | None = None
 
     def __post_init__(self):
         cls = model_class(self.model, "SysidConfig")
@@ -119,8 +127,13 @@ class SysidConfig:
             raise ValueError(f"SysidConfig: reaim must be an integer >= 0, got {self.reaim!r}")
         if self.trajectories < 1 or self.rounds < 1:
             raise ValueError("SysidConfig: trajectories and rounds must be at least 1")
-        if not (self.noise >= 0 and math.isfinite(self.noise)):
-            raise ValueError(f"SysidConfig: noise must be a finite fraction >= 0, got {self.noise}")
+        if not 0 <= self.noise <= 1:
+            raise ValueError(f"SysidConfig: noise must be a fraction of the state range in [0, 1] (1: a standard "
+                             f"deviation as wide as the range), got {self.noise}")
+        for name in ("max_param_error", "max_gap"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < math.inf):
+                raise ValueError(f"SysidConfig: {name} must be a finite fraction >= 0 or None, got {v!r}")
         if self.seed < 0:
             raise ValueError(f"SysidConfig: seed must be >= 0, got {self.seed}")
 
@@ -163,7 +176,8 @@ class SysidReport:
             "plan_status": ev["plan_status"], "train_seconds": round(self.train_seconds, 3),
             "seed": self.config.seed, "noise": self.config.noise, "trajectories": self.config.trajectories,
             "rounds": self.rounds, "fit_status": self.fit_status, "fit_message": self.fit_message,
-            "converged": bool(self.converged), "message": failed(self) or ev["message"],
+            "converged": bool(self.converged), "failure": failed(self), "message": failed(self) or ev["message"],
+            "max_param_error": self.config.max_param_error, "max_gap": self.config.max_gap,
             "polish": [p.record() for p in self.polish],
             "reaim": None if self.reaim is None else self.reaim.record(),
         }
@@ -270,10 +284,26 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
 
 
 def failed(report: SysidReport) -> str | None:
-    """Why the experiment failed, or None."""
+    """Why the experiment failed, or None: the fit stopped on a failure, the plan did not converge, a learned
+    parameter is further from the truth than ``max_param_error`` and 3 standard errors, or the plan's gap exceeds
+    ``max_gap`` (see :class:`SysidConfig`)."""
+    config, ev = report.config, report.evaluation
     if report.fit_status not in _FIT_OK:
         return f"the fit stopped: {report.fit_status} ({report.fit_message})"
-    if not report.evaluation.converged:
-        return report.evaluation.message
+    if not ev.converged:
+        return ev.message
+    off = []
+    for k, v in report.learned.items():
+        err, se, true = abs(v - report.true[k]), report.standard_errors.get(k, math.nan), report.true[k]
+        if (config.max_param_error is not None and k not in report.unidentifiable and not err <= 3 * se
+                and not err <= config.max_param_error * abs(true)):
+            off.append(f"{k} {v:.6g} (true {true:.6g}, {err / max(abs(true), 1e-300):.1%} off, standard error "
+                       f"{se:.2g})")
+    if off:
+        return (f"the fit did not find the parameters the data were made with: {'; '.join(off)} (more than "
+                f"max_param_error {config.max_param_error:g} and 3 standard errors off): fit longer (epochs), by least "
+                f"squares, or allow more (max_param_error)")
+    if config.max_gap is not None and not ev.relative_gap <= config.max_gap:
+        return (f"the plan costs {ev.achieved_cost:.6g} on the true system, {ev.relative_gap:.1%} above the optimum "
+                f"{ev.optimum.cost:.6g}: more than max_gap {config.max_gap:g}")
     return None
-

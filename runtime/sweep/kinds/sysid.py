@@ -10,8 +10,10 @@ The settings are the fields of :class:`~myriad.runtime.sysid.run.SysidConfig` (`
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, ClassVar
 
+from ...learn.dataset import sampling_scales
 from ...sysid.run import SysidConfig
 from ...system import System
 from .base import AbstractKind, Outcome, refuse_unsupported
@@ -20,7 +22,8 @@ __all__ = ["Sysid"]
 
 
 class Sysid(AbstractKind):
-    """A success is a fit that finished and a plan that converged (``SysidReport.converged``)."""
+    """A success is an experiment that passed: the fit finished, the plan converged, and the parameters and the plan's
+    gap are within the config's bounds (:func:`~myriad.runtime.sysid.run.failed`)."""
 
     name: ClassVar[str] = "sysid"
     Settings: ClassVar[type] = SysidConfig
@@ -30,13 +33,15 @@ class Sysid(AbstractKind):
         refuse_unsupported(system, "sysid (its datasets and plans)")
         if settings["model"] == "parametric" and not system.learnable:
             raise ValueError(f"sysid: {system.name} declares no learnable parameters; use model=node")
+        config = self.config(settings, seed=0)
+        sampling_scales(system, dataclasses.replace(config.sampling, noise=config.noise))  # the bounds it needs
 
     def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:
-        from ...sysid.run import run_sysid
+        from ...sysid.run import failed, run_sysid
 
         report = run_sysid(system, self.config(settings, seed), progress=False)
         fields = report.record()
         del fields["system"], fields["seed"]  # the task's own fields
         fields["fit_method"] = fields.pop("method")
         message = fields.pop("message")  # the reason of a failure, else the plan's
-        return Outcome(success=bool(report.converged), message=message, fields=fields)
+        return Outcome(success=failed(report) is None, message=message, fields=fields)

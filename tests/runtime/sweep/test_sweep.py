@@ -73,6 +73,8 @@ def test_method_text_is_parsed_into_checked_settings():
     ("solve:hidden=[1,2", "unbalanced"),
     ("sysid:model=node,method=least_squares", "least squares fits parametric models only"),
     ("sysid:hidden=[0]", "hidden must be a list of layer widths"),
+    ("sysid:noise=2", "noise must be a fraction of the state range in [0, 1]"),
+    ("sysid:max_gap=-0.1", "max_gap must be a finite fraction >= 0 or None"),
 ])
 def test_bad_methods_are_refused_with_the_reason(text, words):
     with pytest.raises(ValueError) as info:
@@ -94,6 +96,15 @@ def test_sweep_config_refuses_repeats_and_bad_seeds_and_orders_tasks():
     json.dumps(tasks)  # a task travels to any worker as JSON-ready data
     with pytest.raises(ValueError, match="declares no learnable parameters"):
         SweepConfig(["simple_case"], ["sysid"]).check_systems()
+
+
+def test_a_sysid_needing_bounds_the_spec_lacks_is_refused_before_any_work(tmp_path):
+    spec = tmp_path / "free.yaml"  # bioreactor without its state's bounds
+    text = (Path(__file__).resolve().parents[3] / "specs" / "bioreactor.yaml").read_text()
+    spec.write_text(text.replace("bounds: [0, 1], ", "").replace("name: bioreactor", "name: free"))
+    with pytest.raises(ValueError, match="state `x` has lower bound -inf.*noise_scale='spread'"):
+        SweepConfig([str(spec)], ["sysid:noise=0.05"]).check_systems()
+    SweepConfig([str(spec)], ['sysid:noise=0.05,sampling={"noise_scale":"spread"}']).check_systems()
 
 
 def test_every_kind_and_backend_is_registered():

@@ -215,9 +215,9 @@ def test_missing_bounds_are_refused_before_any_work(tmp_path, monkeypatch):
         make_dataset("epidemic", Sampling(noise=0.1))
     assert list(tmp_path.iterdir()) == []
     # the relative start spread needs a range only where x0 = 0
-    scales = dataset_module._scales(load("pendulum"), Sampling(x0_std=0.1, x0_relative=True))
+    scales = dataset_module.sampling_scales(load("pendulum"), Sampling(x0_std=0.1, x0_relative=True))
     np.testing.assert_allclose(scales[1], [0.2 * np.pi, 1.6])
-    scales = dataset_module._scales(load("harvest"), Sampling(x0_std=0.1, x0_relative=True))
+    scales = dataset_module.sampling_scales(load("harvest"), Sampling(x0_std=0.1, x0_relative=True))
     np.testing.assert_allclose(scales[1], [0.04])
 
 
