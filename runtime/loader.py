@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 from . import systems as _registry
+from .atomic import atomic_write_text
 from .system import System
 
 __all__ = ["load", "spec_build_dir", "PEER_PREFIX"]
@@ -74,9 +75,7 @@ def load(target: str | os.PathLike) -> System:
     module_path = folder / f"{compiled.name}.py"
     if not module_path.exists() or module_path.read_text(encoding="utf-8") != compiled.text:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = module_path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(compiled.text, encoding="utf-8")
-        os.replace(tmp, module_path)
+        atomic_write_text(module_path, compiled.text)
     module_name = f"myriad_user_systems.{compiled.name}_{key[:16]}"
     spec = importlib.util.spec_from_file_location(module_name, module_path)
     module = importlib.util.module_from_spec(spec)

@@ -2,13 +2,11 @@ r"""Small array operations that stay fast under ``vmap`` on a CPU: products of s
 scatter-adds whose index is a static NumPy array.
 
 Why: under ``vmap`` over a batch, ``a @ b`` of per-member ``5 x 5`` matrices is a batched ``dot`` that XLA:CPU runs
-as one small matrix product per member, and ``x[index]`` / ``x.at[index].add(v)`` with an index *array* become
-``gather`` / ``scatter`` kernels. Measured on a vmapped batch of 1024 Epidemic NLPs (published setting, 2-core AMD
-EPYC, ``jax.profiler`` trace, 2026-12-03): the adjoints' ``(5, 5) @ (5, 5)`` in a 100-step scan took 284 us a step,
-``einsum("kia,kaq->kiq")`` over the 100 stages 27 ms a call, and ``w[:, keep][:, :, keep]`` 27 ms a call. A broadcast
-product summed by ``jnp.sum`` is no better (XLA:CPU hands the short reduction to YNNPACK: 262 us a step in that scan,
-micro-benchmark of 1024 members); written as an unrolled sum of products it is elementwise work that XLA fuses
-(60 us), and a long contraction (a row of the Jacobian, 101 long) stays an XLA dot, the fastest of the three there.
+as one small matrix product per member, ``x[index]`` / ``x.at[index].add(v)`` with an index *array* become ``gather``
+/ ``scatter`` kernels, and a broadcast product summed by ``jnp.sum`` goes to YNNPACK: each several times slower than
+elementwise work (profiles of vmapped Epidemic NLPs, 2026-12-03: `git show 3c72bf5:runtime/smallops.py`). An
+unrolled sum of products is elementwise work that XLA fuses; a long contraction (a row of the Jacobian, 101 long)
+stays an XLA dot, the fastest.
 An index whose columns are arithmetic progressions (single shooting's ``k m + j``, a permutation's runs) is a few
 strided slices (:func:`take`) or interior-padded copies (:func:`add_at`); any other index still works, one
 slice per element.
