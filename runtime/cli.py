@@ -104,16 +104,12 @@ def _parser(command: str | None = None):
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
     for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
         if name in sub.choices:
-            _add_cache_options(sub.choices[name])
+            cache = sub.choices[name].add_mutually_exclusive_group()
+            cache.add_argument("--cache-dir", metavar="DIR",
+                               help="JAX's persistent compilation cache, reused by later runs and safe to delete "
+                                    "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
+            cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
     return p
-
-
-def _add_cache_options(parser):
-    cache = parser.add_mutually_exclusive_group()
-    cache.add_argument("--cache-dir", metavar="DIR",
-                       help="JAX's persistent compilation cache, reused by later runs and safe to delete "
-                            "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
-    cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
 
 
 def _configure_jax(args=None):
