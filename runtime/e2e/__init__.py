@@ -1,9 +1,6 @@
 """End-to-end learning through the planner (Algorithm 2 of the published paper): a model inside the transcribed NLP,
-differentiated through K unrolled extragradient steps or by the implicit function theorem at a converged plan.
-
-    from myriad.runtime.e2e import E2EConfig, Implicit, Unrolled, run_e2e
-    report = run_e2e("cancer_treatment", E2EConfig(model="parametric", adjoint=Unrolled(steps=10)))
-    report = run_e2e("cancer_treatment", E2EConfig(adjoint=Implicit(), iterations=300))
+differentiated through K unrolled extragradient steps or by the implicit function theorem at a converged plan
+(README.md in this folder: its use and contracts).
 """
 
 from ..solvers.adjoint import Implicit as Implicit

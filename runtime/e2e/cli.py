@@ -1,8 +1,7 @@
 """``myriad e2e``: learn a model end to end through the planner (Algorithm 2), then judge its plan on the true system.
 
-Arguments are checked before any work; the JSON record and the plots are written atomically; exit 1 when the run
-stopped early or the plan on the learned model failed (reason on stderr); implicit solves that did not converge are
-reported on stderr (and counted in the record) either way.
+Exit 1 when the run stopped early or the plan on the learned model failed (reason on stderr); implicit solves that
+did not converge are reported on stderr (and counted in the record) either way.
 """
 
 from __future__ import annotations
@@ -138,8 +137,7 @@ def _loss(value) -> str:
 
 
 def _plots(report, folder: Path) -> None:
-    from ..learn.plots import plot_loss
-    from .plots import plot_training
+    from ..learn.plots import plot_loss, plot_training
 
     folder.mkdir(parents=True, exist_ok=True)
     label = f"{report.system} ({report.config.model}, {report.config.adjoint.name})"

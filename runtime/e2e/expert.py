@@ -13,10 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from ..data import default_data
 from ..learn.dataset import Dataset, load_dataset
+from ..learn.evaluate import apply_plan
 from ..loader import load
-from ..simulate import simulate
 from ..solution import Solution
 from ..status import Status
 from ..system import System
@@ -63,11 +62,9 @@ def expert_from_dataset(dataset: Dataset | str | os.PathLike, system: System | s
                          f"{float(system.horizon):g}")
     controls = np.array(trajectories.controls[index])
     states = np.array(trajectories.states[index])
-    data = default_data(system)
-    sim = simulate(system, controls, data.params, data.x0, integrator=transcription.integrator)
-    defect = [float(d) for d in np.asarray(sim.defect)[system.final_mask]]
+    cost, defect = apply_plan(system, controls, transcription)
     return Solution(system=system.name, transcription=type(transcription).__name__, solver="dataset",
                     integrator=transcription.integrator.label, times=np.array(dataset.times), states=states,
-                    controls=controls, cost=float(sim.cost), defect=defect, converged=True, status=Status.CONVERGED,
+                    controls=controls, cost=cost, defect=defect, converged=True, status=Status.CONVERGED,
                     message=f"recorded trajectory {split}[{index}] of {source} (seed {dataset.seed})", iterations=0,
                     constraint_violation=0.0, intervals=dataset.intervals, final_time=float(system.horizon))

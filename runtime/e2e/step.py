@@ -25,7 +25,7 @@ from .config import E2EConfig
 from .implicit import make_implicit_solve
 from .planner import UnrolledPlanner
 
-__all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights", "problem_data"]
+__all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
 
 TRACES = {"iteration": 0}
 # How each iteration got its gradient (Metrics.used).
@@ -93,7 +93,9 @@ class Program:
     # ---- the learned leaves and the problem data -------------------------------------------------------------
 
     def data(self, train: Any, frozen: Any, consts: Any) -> ProblemData:
-        return problem_data(self.model, train, frozen, consts)
+        """``D(tr)``: the model NLP's data of the learned leaves ``train`` (see the module docstring)."""
+        theta = self.model.combine(train["model"], frozen["model"])
+        return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
 
     def loss(self, z: Any, data: ProblemData, weights: Any) -> tuple[jax.Array, tuple]:
         """``w_u mean ||u - u*||^2 + w_x mean ||x - x*||^2`` with ``weights = (w_u, w_x)`` (:func:`loss_weights`): an
@@ -202,12 +204,6 @@ class Program:
         metrics = Metrics(value, norm, kkt, converged, jnp.where(apply | (used == BACKTRACKED), used, SKIPPED),
                           iterations, scale, finite, *plan)
         return next_train, next_opt, carry, metrics
-
-
-def problem_data(model: Any, train: Any, frozen: Any, consts: Any) -> ProblemData:
-    """``D(tr)``: the model NLP's data of the learned leaves ``train`` (see the module docstring)."""
-    theta = model.combine(train["model"], frozen["model"])
-    return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
 
 
 def loss_weights(loss: str) -> jax.Array:

@@ -36,7 +36,7 @@ from ..transcriptions import SingleShooting
 from ..transcriptions.base import transcribe
 from .config import E2EConfig
 from .expert import expert_from_dataset
-from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights, problem_data
+from .step import MIN_STEP_SCALE, TRACES, USED, Program, loss_weights
 
 __all__ = ["E2EReport", "run_e2e", "expert_id"]
 
@@ -58,7 +58,6 @@ class E2EReport:
     config: E2EConfig
     model: Any
     theta: Any
-    spec_params: dict
     learned: dict
     true: dict
     history: list
@@ -232,12 +231,12 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
                                                                     transcription, progress, resuming)
     nlp = transcribe(model.as_system(model.combine(train["model"], frozen["model"])),
                      solved if config.adjoint.name == "implicit" else transcription)
-    data0 = problem_data(model, train, frozen, consts)
+    program = _program(model, nlp, config, expert)
+    data0 = program.data(train, frozen, consts)
     grid = jax.eval_shape(lambda: nlp.unravel(nlp.initial_guess(data0), data0))[2].shape
     if expert.controls.shape != grid:
         raise ValueError(f"{system.name}: the expert's controls {expert.controls.shape} are not on the "
                          f"transcription's grid {grid}")
-    program = _program(model, nlp, config, expert)
     opt_state, carry = program.init_opt(train), program.init_carry(train, frozen, consts)
     config_id, desc = config.identity(system.name)
     if start_id is not None:  # a given start is part of what fixes the iterates
@@ -305,7 +304,7 @@ def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true
     learned.update({f"cost.{k}": float(v) for k, v in train["cost"].items()})
     if not evaluation.converged:
         message = (message + "; " if message else "") + evaluation.message
-    return E2EReport(system=system.name, config=config, model=model, theta=theta, spec_params=spec_params,
+    return E2EReport(system=system.name, config=config, model=model, theta=theta,
                      learned=learned, true=true, history=run.history, snapshots=run.snapshots, counts=counts,
                      status=status, message=message or evaluation.message, iterations=len(run.history),
                      train_seconds=seconds, compile_count=compiles, evaluation=evaluation,

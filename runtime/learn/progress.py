@@ -1,7 +1,6 @@
-"""Progress meters for the learners' loops and the sweep (Diffrax's ``TqdmProgressMeter`` / ``NoProgressMeter`` idea):
-a tqdm bar on stderr when a person is watching, a plain line every few seconds when stderr is a log file or a pipe
-(a bar there is one line redrawn in place, which a log shows as nothing, or as garbage), behind one interface so a
-loop never asks which.
+"""Progress meters for the learners' loops and the sweep (Diffrax's ``TqdmProgressMeter`` / ``NoProgressMeter`` idea)
+behind one interface, so a loop never asks which: a bar on a terminal, a plain line every few seconds in a log file
+or a pipe (where a bar redrawn in place shows as nothing, or as garbage).
 
     with progress_meter(None, total=600, initial=0, desc="fit van_der_pol", unit="epoch") as meter:
         meter.update("train 1.2e-03")   # one step done, and what to show beside the bar (None: keep the last)
@@ -54,9 +53,8 @@ class TqdmProgressMeter(NoProgressMeter):
 
 
 class LineProgressMeter(NoProgressMeter):
-    """A line on stderr at the first step done ``seconds`` or more after the last line (or the start), e.g.
-    ``fit van_der_pol: epoch 120/600, train 3.2e-04, 12.3 s``, and one at the end of a run that printed any, so a
-    log shows where it stopped. ``clock`` is injectable (a test's fake clock)."""
+    """A line on stderr at the first step ``seconds`` or more after the last line (or the start), e.g.
+    ``fit van_der_pol: epoch 120/600, train 3.2e-04, 12.3 s``, and one at the end of a run that printed any."""
 
     def __init__(self, total: int, initial: int, desc: str, unit: str, seconds: float = LINE_SECONDS,
                  clock: Callable[[], float] = time.monotonic):
