@@ -1,11 +1,9 @@
 """The learners' models: a learnable vector field behind one interface, and the learned system to plan on.
 
     model = make_model("node", system, hidden=(100, 100))   # or Parametric(system), NeuralODE(system, ...)
-    theta = model.init_params(key, data)                    # data: a Trajectories (states and controls) or None
-    sol = solve(model.as_system(theta), SingleShooting(), Ipopt())
+    sol = solve(model.as_system(model.init_params(key, data)), SingleShooting(), Ipopt())
 
-``MODELS`` is the only source of model names: every configuration's and command's ``model`` is one of its keys,
-each model's ``label``.
+``MODELS`` is the only source of model names (each model's ``label``).
 """
 
 import dataclasses
