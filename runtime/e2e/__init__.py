@@ -7,10 +7,10 @@ from ..solvers.adjoint import Implicit as Implicit
 from ..solvers.adjoint import Unrolled as Unrolled
 from .config import E2EConfig as E2EConfig
 from .expert import expert_from_dataset as expert_from_dataset
-from .implicit import make_implicit_solve as make_implicit_solve
 from .planner import PlannerState as PlannerState
 from .planner import UnrolledPlanner as UnrolledPlanner
 from .planner import default_planner_solver as default_planner_solver
+from .planner import make_implicit_solve as make_implicit_solve
 from .train import E2EReport as E2EReport
 from .train import run_e2e as run_e2e
 

@@ -22,8 +22,7 @@ from ..solvers.adjoint import Implicit
 from ..solvers.extragradient import optax_promotion
 from ..solvers.interior_point import InteriorPoint
 from .config import E2EConfig
-from .implicit import make_implicit_solve
-from .planner import UnrolledPlanner
+from .planner import UnrolledPlanner, make_implicit_solve
 
 __all__ = ["Carry", "MIN_STEP_SCALE", "Metrics", "Program", "TRACES", "USED", "loss_weights"]
 
