@@ -19,10 +19,8 @@ __all__ = ["atomic_open", "atomic_write_bytes", "atomic_write_text"]
 
 @contextlib.contextmanager
 def atomic_open(path: str | os.PathLike) -> Iterator[BinaryIO]:
-    """A binary file object whose contents replace ``path`` when the ``with`` block exits without an error.
-
-    The parent folder must exist. An exception inside the block removes the temporary file and propagates.
-    """
+    """A binary file object whose contents replace ``path`` (its folder must exist) when the ``with`` block exits
+    without an error."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666)

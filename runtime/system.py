@@ -18,8 +18,6 @@ Path constraints: ``path_lower <= path_constraints(x, u, t, p) <= path_upper`` a
 transcription enforces them at every node (and at collocation midpoints). Lower -inf or upper +inf means one-sided;
 ``path_lower[i] == path_upper[i]`` is an equality constraint. The Jacobians are generated like the dynamics'.
 
-Until a method enforces these, :meth:`System.require_schema1_features` refuses such a system with a clear error.
-
 Sign convention: every cost function and every derived artefact (Hamiltonian, costates, u*) is in *minimisation
 form*. A spec written with ``sense: maximize`` has its running and terminal payoff negated by the compiler; the
 objective the runtime minimises, and reports, is ``J = phi(x(T)) + int L dt`` in that form.
