@@ -27,9 +27,8 @@ from ..transcriptions.nominal_scales import state_scale
 
 __all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
 
-# The action bound of a shipped system whose control is unbounded, used where ``action_bound`` is not given: twice
-# the largest magnitude of its optimal control, rounded up (Simple Case: u* stays in [0.01, 1.00]), so the optimum
-# is inside the action space with room to explore past it.
+# Where ``action_bound`` is not given, a shipped unbounded control's: twice its optimal control's largest magnitude,
+# rounded up, so the optimum is inside the action space with room past it (README.md: action bounds).
 DEFAULT_ACTION_BOUNDS = {"simple_case": 2.0}
 
 
@@ -50,7 +49,7 @@ class EnvOptions:
         normalize_actions: actions in [-1, 1] mapped onto the control bounds (what RL libraries and Gymnasium's
             checker expect); False: actions are the controls, in their units.
         action_bound: B > 0, the bound used on every unbounded side of a control ([-B, B] for a free control);
-            required where a control is unbounded and actions are normalised.
+            required where a control is unbounded (default: :data:`DEFAULT_ACTION_BOUNDS`, Simple Case's 2).
     """
 
     steps: int = 100
@@ -88,9 +87,8 @@ class EnvState(NamedTuple):
 
 
 class Episode(NamedTuple):
-    """What :func:`play` returns: observations (N + 1, n + 1), rewards (N,), the states (N + 1, n) and the return."""
+    """What :func:`play` returns: the rewards (N,), the states (N + 1, n) and the return."""
 
-    observations: Any
     rewards: Any
     states: Any
     total: Any
@@ -127,7 +125,6 @@ class Env:
             raise ValueError(f"{self.system.name}: control(s) {', '.join(free)} have no finite bounds, so {why}; pass "
                              f"action_bound=B to limit each unbounded side to B in magnitude{alternative}")
 
-    # ---- sizes, bounds and data ------------------------------------------------------------------------------
     @property
     def observation_size(self) -> int:
         return self.system.n_states + 1
@@ -164,7 +161,6 @@ class Env:
         """The environment's data: the system's parameters (``params`` overriding the spec's) and the start x0."""
         return default_data(self.system, params, x0)
 
-    # ---- the pure functions ----------------------------------------------------------------------------------
     def control(self, action: Any) -> Any:
         """The control an action applies: clipped to the action bounds, then mapped onto the controls if normalised."""
         action = jnp.asarray(action)
@@ -250,7 +246,6 @@ class Env:
         next_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), state_reset, next_state)
         return jnp.where(done, obs_reset, obs), next_state, reward, terminated, truncated, info
 
-    # ---- helpers ---------------------------------------------------------------------------------------------
     def _outside(self, x):
         """Each state's distance outside its bounds, relative to its nominal scale s (0 inside)."""
         a = self.system.arrays()
@@ -283,25 +278,15 @@ def make_jax(target: System | str, **options) -> Env:
 
 @functools.partial(jax.jit, static_argnums=0)
 def play(env: Env, actions: Any, params: ProblemData, key: Any = None) -> Episode:
-    """Play an open-loop sequence of actions from a reset; jit-compiled once per env and shapes (``vmap`` it over
-    action sequences, parameters or keys).
-
-    Args:
-        env: the environment.
-        actions: (K, m) actions, K <= N steps (``step_env``: no automatic reset, so K = N plays a whole episode).
-        params: the environment's data.
-        key: the reset's key (only used with ``start_noise``).
-
-    Returns:
-        An :class:`Episode`.
-    """
+    """Play (K, m) actions open loop from a reset with ``key`` (used only with ``start_noise``), K <= N steps of
+    ``step_env`` (no automatic reset: K = N plays a whole episode); jit-compiled once per env and shapes (``vmap``
+    it over action sequences, parameters or keys)."""
     key = jax.random.PRNGKey(0) if key is None else key
-    obs0, state0 = env.reset(key, params)
+    _, state0 = env.reset(key, params)
 
     def body(state, action):
-        obs, state, reward, _, _, _ = env.step_env(state, action, params)
-        return state, (obs, reward, state.x)
+        _, state, reward, _, _, _ = env.step_env(state, action, params)
+        return state, (reward, state.x)
 
-    _, (obs, rewards, xs) = jax.lax.scan(body, state0, jnp.asarray(actions))
-    return Episode(observations=jnp.concatenate([obs0[None], obs]), rewards=rewards,
-                   states=jnp.concatenate([state0.x[None], xs]), total=jnp.sum(rewards))
+    _, (rewards, xs) = jax.lax.scan(body, state0, jnp.asarray(actions))
+    return Episode(rewards=rewards, states=jnp.concatenate([state0.x[None], xs]), total=jnp.sum(rewards))

@@ -41,10 +41,11 @@ def env_id(name: str) -> str:
     return "myriad/" + "".join(part.capitalize() for part in name.split("_")) + "-v0"
 
 
-def _core(system: System | str, options: dict) -> Env:
+def _core(system: System | str, options: dict) -> tuple[Env, spaces.Box, spaces.Box]:
+    """The functional core, its (single) action space and observation space."""
     env = make_jax(system, **options)
     env.require_finite_controls("a Gymnasium action space cannot hold them")
-    return env
+    return env, _f32_box(*env.action_bounds), _f32_box(*env.observation_bounds)
 
 
 def _f32_box(lo: np.ndarray, hi: np.ndarray) -> spaces.Box:
@@ -73,10 +74,6 @@ def _batched(env: Env):
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 
 
-def _dtype():
-    return jax.dtypes.canonicalize_dtype(np.float64)  # float64 under jax_enable_x64, else float32
-
-
 class MyriadEnv(gymnasium.Env):
     """One system as a Gymnasium environment.
 
@@ -85,8 +82,7 @@ class MyriadEnv(gymnasium.Env):
         render_mode: None or ``"rgb_array"`` (the state and control traces so far).
         params: parameter values overriding the spec's.
         x0: the start state (default: the spec's).
-        **options: :class:`~myriad.runtime.rl.env.EnvOptions` fields (``steps``, ``integrator``, ``substeps``,
-            ``max_steps``, ``start_noise``, ``penalty``, ``normalize_actions``, ``action_bound``).
+        **options: :class:`~myriad.runtime.rl.env.EnvOptions` fields.
 
     Raises:
         ValueError: a control without finite bounds and no ``action_bound``; an invalid option.
@@ -98,12 +94,10 @@ class MyriadEnv(gymnasium.Env):
                  params: dict | None = None, x0: Any = None, **options):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
-        self.core = _core(system, options)
+        self.core, self.action_space, self.observation_space = _core(system, options)
         self.system = self.core.system
         self.render_mode = render_mode
         self.data = self.core.default_params(params, x0)
-        self.action_space = _f32_box(*self.core.action_bounds)
-        self.observation_space = _f32_box(*self.core.observation_bounds)
         self._reset_fn, self._step_fn = _single(self.core)
         self._state = None
         self._over = False
@@ -120,7 +114,8 @@ class MyriadEnv(gymnasium.Env):
     def step(self, action):
         if self._state is None or self._over:
             raise RuntimeError("call reset() before step(): the episode has not started or is over")
-        action = np.asarray(action, dtype=_dtype()).reshape(self.action_space.shape)
+        # float64 under jax_enable_x64, else float32: the core's own dtype, so no second compile
+        action = np.asarray(action, jax.dtypes.canonicalize_dtype(np.float64)).reshape(self.action_space.shape)
         packed, self._state = self._step_fn(self._state, action, self.data)
         packed = np.asarray(packed, dtype=np.float64)
         n = self.core.observation_size
@@ -164,7 +159,7 @@ class MyriadVectorEnv(VectorEnv):
             raise ValueError(f"num_envs must be at least 1, got {num_envs}")
         if render_mode is not None:
             raise ValueError("MyriadVectorEnv does not render; make single envs with render_mode='rgb_array'")
-        self.core = _core(system, options)
+        self.core, self.single_action_space, self.single_observation_space = _core(system, options)
         self.num_envs = num_envs
         if not params and x0 is None:  # batch_data needs a batch axis on something
             x0 = np.broadcast_to(self.core.default_params().x0, (num_envs, self.core.system.n_states))
@@ -172,8 +167,6 @@ class MyriadVectorEnv(VectorEnv):
         size = jax.tree.leaves(self.data)[0].shape[0]
         if size != num_envs:
             raise ValueError(f"params/x0 hold {size} envs, num_envs is {num_envs}")
-        self.single_action_space = _f32_box(*self.core.action_bounds)
-        self.single_observation_space = _f32_box(*self.core.observation_bounds)
         self.action_space = batch_space(self.single_action_space, num_envs)
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self._reset_fn, self._step_fn = _batched(self.core)
@@ -193,7 +186,7 @@ class MyriadVectorEnv(VectorEnv):
     def step(self, actions):
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        actions = np.asarray(actions, dtype=_dtype()).reshape(self.action_space.shape)
+        actions = np.asarray(actions, jax.dtypes.canonicalize_dtype(np.float64)).reshape(self.action_space.shape)
         obs, self._state, reward, terminated, truncated, info = self._step_fn(self._keys(), self._state, actions,
                                                                               self.data)
         obs, reward, terminated, truncated, info = jax.device_get((obs, reward, terminated, truncated, info))

@@ -130,7 +130,7 @@ class MPC:
     """A receding-horizon policy for ``env`` (README.md in this folder: model-predictive control).
 
     Args:
-        env: the environment the policy acts in (actions normalised or not: the plan is in controls and mapped).
+        env: the environment the policy acts in (actions normalised or not: the plan's controls are applied).
         params: the planner's model parameters (a partial dict overrides the spec's; default: the spec's).
         replan_every: re-plan at the steps 0, k, 2k, ... (1: every step).
         terminal: ``"penalty"`` (the environment's terminal cost) or ``"constraint"`` (the published rows).
@@ -154,7 +154,8 @@ class MPC:
         # The planner's parameters are data, so MPCs that differ only in them (nominal, mismatched) share one NLP,
         # and with it IPOPT's compiled derivatives (the solver caches them per NLP object).
         self.nlp = _planning_nlp(self.model, terminal)
-        self._step = jax.jit(env.step_env)
+        # The closed loop plays the plan's controls themselves: the env with controls as actions, all else its own.
+        self._step = jax.jit(Env(env.system, dataclasses.replace(env.options, normalize_actions=False)).step_env)
 
     def initial_plan(self) -> np.ndarray:
         """The cold start of the first plan: the transcriptions' default guess (mid-bounds, else 0), (N, m)."""
@@ -162,11 +163,8 @@ class MPC:
         return np.clip(guess_controls(self.env.system, self.model.options.steps), lo, hi)
 
     def plan(self, x: Any, k: int, previous: np.ndarray):
-        """Solve the problem left at step ``k`` from state ``x``, warm-started from ``previous`` (N, m).
-
-        Returns:
-            ``(controls (N, m), NLPResult)``; ``controls[k:]`` is the plan, ``controls[:k]`` ``previous``'s.
-        """
+        """Solve the problem left at step ``k`` from state ``x``, warm-started from ``previous`` (N, m): returns
+        ``(controls (N, m), NLPResult)``, ``controls[k:]`` the plan and ``controls[:k]`` ``previous``'s."""
         previous = np.asarray(previous, np.float64)
         data = ProblemData({"model": self.params, "k": np.int32(k), "prev": previous}, np.asarray(x, np.float64))
         result = self.solver.solve(self.nlp, data, previous.reshape(-1))
@@ -174,20 +172,12 @@ class MPC:
         controls[:k] = previous[:k]  # the solver only approximates them (they are played already, never used)
         return controls, result
 
-    # ---- the closed loop -------------------------------------------------------------------------------------
-    def action(self, u: np.ndarray) -> np.ndarray:
-        """The env action that applies control ``u``."""
-        if not self.env.options.normalize_actions:
-            return u
-        lo, hi = self.env.control_bounds
-        return 2.0 * (u - lo) / (hi - lo) - 1.0
-
     def run(self, data: ProblemData, *, obs_noise: float = 0.0, seed: int = 0,
             first_plan: np.ndarray | None = None) -> MPCEpisode:
-        """One closed-loop episode in the environment with ``data`` (its true parameters and x0).
+        """One closed-loop episode in the environment with ``data`` (``env.default_params(...)``: its true parameters
+        and x0).
 
         Args:
-            data: the environment's data (``env.default_params(...)``).
             obs_noise: the observation noise's standard deviation per unit of state scale.
             seed: the noise's seed (``numpy.random.default_rng``), and the reset's key.
             first_plan: the warm start of the first plan, (N, m) controls (default :meth:`initial_plan`).
@@ -212,7 +202,7 @@ class MPC:
                     plan = new
                 else:
                     failures += 1
-            _, state, reward, _, _, info = self._step(state, jnp.asarray(self.action(plan[k])), data)
+            _, state, reward, _, _, info = self._step(state, jnp.asarray(plan[k]), data)
             total, penalty = total + float(reward), penalty + float(info["penalty"])
             states.append(np.asarray(state.x))
             controls.append(plan[k].copy())

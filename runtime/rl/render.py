@@ -14,18 +14,9 @@ __all__ = ["draw_traces"]
 
 
 def draw_traces(system, times, states, controls, size: tuple[int, int] = (640, 480)) -> np.ndarray:
-    """One panel per state and per control over [0, T], with the spec's bounds and required final values.
-
-    Args:
-        system: the system (names and bounds label the panels).
-        times: (K + 1,) the times of the states reached so far.
-        states: (K + 1, n) the states.
-        controls: (K, m) the controls applied on [t_k, t_{k+1}] (drawn as the steps they are).
-        size: (width, height) in pixels.
-
-    Returns:
-        An (height, width, 3) uint8 array.
-    """
+    """An (height, width, 3) uint8 frame: one panel per state and per control over [0, T], with the spec's bounds and
+    required final values; ``times`` (K + 1,) and ``states`` (K + 1, n) reached so far, ``controls`` (K, m) applied
+    on [t_k, t_{k+1}] (drawn as the steps they are), ``size`` (width, height) in pixels."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
