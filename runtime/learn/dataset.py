@@ -265,11 +265,8 @@ def _generate(system: System, s: Sampling, batch: int, key, around, u_scale, x0_
 
 def make_dataset(system: System | str | os.PathLike, sampling: Sampling = Sampling(), *,
                  trajectories: tuple[int, int, int] = (10, 3, 3), seed: int = 0, around: Any = None) -> Dataset:
-    """Sample (train, validation, test) trajectories of ``system``'s true dynamics (see the module docstring).
-
-    ``system`` is a :class:`System` or a shipped name / spec path for :func:`~myriad.runtime.load`; ``trajectories``
-    the numbers of train (>= 1), validation and test (>= 0) trajectories; ``seed`` a non-negative integer (same
-    seed, same bits); ``around`` the (N + 1, m) controls (``(N + 1,)`` when m = 1) for ``controls="around"`` only.
+    """Sample (train, validation, test) trajectories of ``system``'s (a :class:`System`, or a name / spec path) true
+    dynamics (see the module docstring); ``around``: the (N + 1, m) controls for ``controls="around"`` only.
 
     Raises:
         ValueError: a bound the sampling needs is infinite; bad sizes, seed or ``around``; non-finite generated
@@ -329,11 +326,8 @@ def _digest(arrays: dict[str, np.ndarray], head: bytes = b"") -> str:
 
 
 def save_dataset(dataset: Dataset, path: str | os.PathLike) -> Path:
-    """Write ``path`` (``.npz``, the arrays) then its sidecar ``path.with_suffix(".json")``, each atomically.
-
-    The sidecar holds the system, spec hash, every sampling setting, seed, shapes, the arrays' SHA-256 and the format
-    version; an interrupted save leaves no sidecar or a stale one, which ``load_dataset`` refuses. Returns ``path``.
-    """
+    """Write ``path`` (``.npz``, the arrays) then its sidecar ``path.with_suffix(".json")`` (the system, spec hash,
+    sampling, seed, shapes and the arrays' SHA-256), each atomically; ``load_dataset`` refuses a stale sidecar."""
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"save_dataset: the path must end in .npz, got {str(path)!r}")
@@ -350,12 +344,8 @@ def save_dataset(dataset: Dataset, path: str | os.PathLike) -> Path:
 
 
 def load_dataset(path: str | os.PathLike, system: System | str | os.PathLike | None = None) -> Dataset:
-    """Read a dataset written by :func:`save_dataset`, checked against its sidecar and ``system`` (if given).
-
-    Raises FileNotFoundError (a file missing) or ValueError: unknown format or version; arrays missing, mis-shaped,
-    not float64, non-finite or not those the sidecar describes; ``system`` (object, name or spec path) with another
-    spec hash than the dataset's (the message names both systems and both hashes).
-    """
+    """Read a dataset written by :func:`save_dataset`, checked against its sidecar and ``system`` (if given; another
+    spec hash is refused with both named). FileNotFoundError or ValueError for anything else amiss."""
     path = Path(path)
     side = path.with_suffix(".json")
     if not (path.is_file() and side.is_file()):

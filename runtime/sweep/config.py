@@ -1,13 +1,6 @@
-"""What a sweep runs: systems x methods x seeds, each task a JSON-ready dict for :func:`.tasks.run`.
-
-A method is a named kind with its settings (the fields of the kind's config, e.g.
-:class:`~myriad.runtime.solve_config.SolveConfig`); on the command line ``[NAME=]KIND[:KEY=VALUE,...]``, each value
-read as JSON when it parses (``20``, ``1e-6``, ``true``, ``[32,32]``, ``{"max_iter":50}``) and as a string otherwise
-(:func:`~myriad.runtime.configs.parse_value`, also the rule of every command's ``--set KEY=VALUE``)::
-
-    solve                                            # the published setting
-    trap20=solve:transcription=trapezoidal,intervals=20
-    sysid:model=node,epochs=200,hidden=[32,32]
+"""What a sweep runs: systems x methods x seeds, each task a JSON-ready dict for :func:`.tasks.run`. A method is a
+named kind with its settings (the fields of the kind's config), written ``[NAME=]KIND[:KEY=VALUE,...]`` with values
+read by :func:`~myriad.runtime.configs.parse_value` (the rule of every command's ``--set KEY=VALUE``).
 """
 
 from __future__ import annotations

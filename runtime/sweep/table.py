@@ -1,10 +1,5 @@
 """The records of a sweep as one table: Markdown (printed), CSV (every field) and JSON (every record, nested), each
-written atomically (a reader never sees half a file).
-
-The Markdown table shows ``system | method | seed | status``, then the ``columns`` of each kind present (in the
-order the kinds first appear), then ``wall s``; the message of every task that is not ``ok`` follows the table.
-The CSV has every field of every record (nested values as compact JSON). The JSON is
-``{"format": "myriad.sweep", "version": 1, "config": ..., "records": [...]}``.
+written atomically; the formats: the README's "Records".
 """
 
 from __future__ import annotations
@@ -26,7 +21,8 @@ LEADING = ("system", "method", "seed", "status")
 
 
 def columns(records: Sequence[dict[str, Any]]) -> list[str]:
-    """The Markdown table's columns for these records (module docstring)."""
+    """The Markdown table's columns: system, method, seed, status, the ``columns`` of each kind present (in the order
+    the kinds first appear), then the wall time."""
     out = list(LEADING)
     for r in records:
         for c in KINDS[r["kind"]].columns if r.get("kind") in KINDS else ():

@@ -1,11 +1,5 @@
 """One task of a sweep as a pure function, ``run(config) -> record``: JSON in, JSON out, the same on every backend.
-
-A record holds the task (``index``, ``system``: as given, a name or a spec path; ``method``, ``kind``, ``seed``,
-``settings``), the loaded system's own ``system_name`` (what the table shows: ``pk_dosing``, not the path), its
-``status`` (``ok``; ``failed``: ran but did not converge or missed its goal; ``error``: raised, with ``error_type`` and
-``traceback``), a ``message``, the kind's own fields, and where and how long it ran (``host``, ``pid``,
-``wall_seconds``). Every field but those and the others ending in ``_seconds`` (compile, solve and training times)
-depends only on the config: :func:`comparable` drops them.
+The record's fields and statuses: the README's "Records"; :func:`comparable` drops what depends on where it ran.
 """
 
 from __future__ import annotations
@@ -26,11 +20,8 @@ VOLATILE = ("host", "pid")
 
 
 def _setup(cache_dir: str | None) -> None:
-    """float64 (every task needs it), and this machine's shared compilation cache (:mod:`..compilation.jax_cache`).
-
-    A process that already has a cache folder (``JAX_COMPILATION_CACHE_DIR``, or the caller's own in the serial
-    backend) keeps it: JAX reads it once, at its first compilation. ``cache_dir`` None: no cache.
-    """
+    """float64 (every task needs it), and this machine's shared compilation cache (:mod:`..compilation.jax_cache`;
+    a process that already has one keeps it: JAX reads it once, at its first compilation)."""
     import jax
 
     from ..compilation.jax_cache import enable_compilation_cache

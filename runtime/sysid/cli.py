@@ -18,7 +18,8 @@ from ..learn.models import MODELS
 __all__ = ["add_parser", "run"]
 
 
-_METAVARS = {"trajectories": "N", "rounds": "K", "noise": "F", "seed": "S", "epochs": "E", "hidden": "W", "reaim": "K"}
+_METAVARS = {"trajectories": "N", "rounds": "K", "noise": "F", "seed": "S", "epochs": "E", "hidden": "W", "reaim": "K",
+             "max_param_error": "F", "max_gap": "F"}
 
 
 def add_parser(sub) -> None:

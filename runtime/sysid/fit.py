@@ -29,7 +29,7 @@ import numpy as np
 import optax
 
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
-from ..learn.dataset import check_source, dataset_id
+from ..learn.dataset import _count, check_source, dataset_id
 from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.loop import Step, Stop, check_run, checkpoint_path, train
 from ..learn.models import AbstractModel
@@ -38,10 +38,6 @@ from .losses import SCALES, TRACES, fit_integrator, state_scale, train_epoch, va
 __all__ = ["FitConfig", "FitResult", "fit", "METHODS"]
 
 METHODS = ("single_shooting", "multiple_shooting")
-
-
-def _int(v: Any) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,7 +89,7 @@ class FitConfig:
                                     ("patience", 1, True), ("checkpoint_every", 1, True), ("seed", 0, False),
                                     ("window", 1, True)):
             v = getattr(self, name)
-            if not ((optional and v is None) or (_int(v) and v >= low)):
+            if not ((optional and v is None) or _count(v) >= low):
                 raise ValueError(f"FitConfig: {name} must be an integer >= {low}{' or None' if optional else ''}, "
                                  f"got {v!r}")
         if self.method not in METHODS:
@@ -118,7 +114,7 @@ class FitConfig:
         tile = self.method == "multiple_shooting"
         if self.curriculum is None:
             spec = [(n_steps if self.window is None else self.window, None)]
-        elif all(_int(c) for c in self.curriculum):
+        elif all(_count(c) >= 0 for c in self.curriculum):
             k = len(self.curriculum)
             spec = [(w, self.epochs // k) for w in self.curriculum[:-1]] + [(self.curriculum[-1], None)]
         else:
@@ -138,10 +134,10 @@ def _curriculum(c: Any) -> tuple:
     except TypeError:
         c = ()
     last = len(c) - 1
-    if c and all(_int(s) and s >= 1 for s in c):
+    if c and all(_count(s) >= 1 for s in c):
         return tuple(int(s) for s in c)
-    if c and all(isinstance(s, tuple) and len(s) == 2 and _int(s[0]) and s[0] >= 1
-                 and ((_int(s[1]) and s[1] >= 1) or (i == last and s[1] is None)) for i, s in enumerate(c)):
+    if c and all(isinstance(s, tuple) and len(s) == 2 and _count(s[0]) >= 1
+                 and (_count(s[1]) >= 1 or (i == last and s[1] is None)) for i, s in enumerate(c)):
         return tuple((int(w), None if e is None else int(e)) for w, e in c)
     raise ValueError(f"FitConfig: curriculum must be (W1, ..., WK) or ((W1, E1), ..., (WK, EK or None)) with "
                      f"windows and epochs >= 1, got {c!r}")

@@ -226,23 +226,19 @@ def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: 
 def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "single_shooting",
                   window: int | None = None, fit_starts: bool | None = None, drop_clipped: bool | None = None,
                   max_steps: int = 200, scale: Any = "range") -> LeastSquaresResult:
-    """Fit a parametric model's parameters to a dataset by Levenberg-Marquardt (see the module docstring).
+    """Fit a :class:`~myriad.runtime.learn.models.Parametric` model's parameters to a dataset of its system by
+    Levenberg-Marquardt (see the module docstring), from ``theta0`` (names left out start at the model's guesses).
 
     Args:
-        model: a :class:`~myriad.runtime.learn.models.Parametric` (``init_params``, ``vector_field``, ``system``).
-        dataset: a :class:`~myriad.runtime.learn.dataset.Dataset` of the same system (name and spec hash checked).
-        theta0: starting values {name: value}; names left out start at ``model.init_params``' guesses.
-        method: "single_shooting" or "multiple_shooting".
-        window: steps per multiple-shooting window (default N // 10, at least 1).
-        fit_starts: estimate each trajectory's start too (single shooting); None: when the data are noisy
-            (``dataset.sampling.noise > 0``) and the method is single shooting.
-        drop_clipped: leave out observations at a finite state bound; None: when the data are noisy.
+        method, window: "single_shooting" or "multiple_shooting" in windows of ``window`` steps (default N // 10).
+        fit_starts: estimate each trajectory's start too (single shooting); None: on noisy data.
+        drop_clipped: leave out observations at a finite state bound; None: on noisy data.
         max_steps: Levenberg-Marquardt's step limit.
-        scale: per-state residual scale: "range" (see the module docstring), None (1) or n positive numbers.
+        scale: the per-state residual scale: "range" (see the module docstring), None (1) or n positive numbers.
 
     Raises:
-        ValueError: a dataset of another system or spec, wrong shapes, a model with non-scalar parameters (a Neural
-            ODE: use ``fit``), unknown ``theta0`` names, an unknown method or a bad window.
+        ValueError: a dataset of another system or spec, a model with non-scalar parameters (a Neural ODE: use
+            ``fit``), unknown ``theta0`` names, an unknown method or a bad window.
     """
     start = time.perf_counter()
     system = model.system

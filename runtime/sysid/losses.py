@@ -1,35 +1,24 @@
 """The trajectory loss of system identification, and its multiple-shooting and curriculum variants.
 
-Notation: a batch of B observed trajectories on the uniform grid t_k = t_0 + k h, k = 0..N (h = (t_N - t_0) / N),
-controls u_{b,k} (m) and states x_{b,k} (n). The model with parameters theta is rolled out with a one-step integrator
-Phi (the data's own, see :func:`fit_integrator`) from an *observed* state with the observed, piecewise-linear controls:
-
-    x~_{b, s + l} = Phi^l(x_{b,s}),     l = 1..W,
-
-in windows of W steps starting at nodes s in S. The loss is
+On the uniform grid t_k = t_0 + k h, k = 0..N, the model with parameters theta is rolled out by a one-step integrator
+Phi (the data's own, :func:`fit_integrator`) from an *observed* state x_{b,s} under the observed, piecewise-linear
+controls, in windows of W steps starting at the nodes s in S: x~_{b,s+l} = Phi^l(x_{b,s}), l = 1..W. The loss is
 
     loss(theta) = sum_b m_b sum_{s in S} sum_{l=1..W} c_{s,l} gamma^l sum_i ((x~_{b,s+l,i} - x_{b,s+l,i}) / s_i)^2
                   / (sum_b m_b * K * n),
 
-with m_b in {0, 1} a trajectory mask (the padding of a fixed-shape minibatch), s_i a per-state scale, gamma in (0, 1]
-a per-step discount and c_{s,l} = 1 / (number of windows that predict node s + l), so each predicted node weighs 1 in
-total and K is the number of distinct predicted nodes. The layouts:
+with m_b in {0, 1} a trajectory mask (a fixed-shape minibatch's padding), s_i a per-state scale, gamma in (0, 1] a
+per-step discount (the published "crude curriculum"), c_{s,l} = 1 / (the number of windows predicting node s + l)
+and K the number of distinct predicted nodes, so each predicted node weighs 1 in total. The layouts:
 
-* single shooting, S = {0}, W = N: with gamma = 1 and s = 1 this is the published loss
-  ``1/(B N n) sum ||x~ - x||^2`` over nodes k = 1..N (node 0 is the observed start, not a prediction);
-* multiple shooting (``tile=True``): S = {0, W, 2W, ...}, and when W does not divide N the last window starts at
-  N - W instead (it overlaps its neighbour, whence c = 1/2 on the shared nodes) so every window is a true W-step
-  rollout on the data grid: no rollout runs past t_N on invented controls. Each window starts at an observed state,
-  so no continuity penalty is needed. K = N;
-* a horizon prefix (``tile=False``): S = {0}, only the first W steps (K = W): a curriculum stage on the early part of
-  each trajectory, as diffrax's Neural ODE example trains on the first 10 % first.
+* single shooting, S = {0}, W = N: with gamma = 1 and s = 1 the published loss ``1/(B N n) sum ||x~ - x||^2``;
+* multiple shooting (``tile=True``): S = {0, W, 2W, ...}; where W does not divide N the last window starts at N - W
+  (overlapping its neighbour), so no rollout runs past t_N on invented controls. K = N;
+* a horizon prefix (``tile=False``): S = {0}, the first W steps only (K = W), a curriculum stage.
 
-gamma^l is the published "crude curriculum" (gamma ~ 0.88 for Bacteria, Mountain Car, Cart-Pole), counted from each
-window's start. Scales: ``"none"`` (s = 1, the published loss) or ``"range"`` (s_i = x_max,i - x_min,i where both
-bounds are finite, else max |x_i| observed, else 1: states of very different magnitudes, such as HIV Treatment's
-T ~ 1000 and I ~ 0.04, then weigh alike; the same definition as :mod:`.least_squares`) or ``"data"`` (s_i = the
-spread max - min of x_i over the training data, else the range: a state that the data move over a small part of its
-bounds, such as Glucose's hormone H in [0, 0.002] of [0, 1], is fitted as closely as the others).
+Scales: ``"none"`` (s = 1, published), ``"range"`` (x_max,i - x_min,i where both bounds are finite, else max |x_i|
+observed, else 1: HIV Treatment's T ~ 1000 and I ~ 0.04 then weigh alike) or ``"data"`` (the spread of x_i in the
+training data where smaller than that: Glucose's hormone moves over 0.2 % of its range).
 
 :func:`validation_loss` and :func:`train_epoch` are the two compiled functions :func:`~.fit.fit` runs, jit-cached
 on their static configuration (model, integrator, optimiser, layout, shapes): a second fit compiles nothing.
@@ -99,14 +88,8 @@ class WindowLayout(NamedTuple):
 
 
 def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma: float = 1.0) -> WindowLayout:
-    """The window layout over N = ``n_steps`` intervals (see the module docstring).
-
-    Args:
-        n_steps: N.
-        window: W in 1..N; None means N (single shooting).
-        tile: windows over the whole trajectory (multiple shooting) or only the first W steps (a prefix).
-        gamma: the per-step discount, in (0, 1].
-    """
+    """The window layout over N = ``n_steps`` intervals of windows of W = ``window`` steps (None: N), tiled over the
+    trajectory or only the first (``tile=False``), discounted by ``gamma`` (see the module docstring)."""
     window = n_steps if window is None else int(window)
     if not 1 <= window <= n_steps:
         raise ValueError(f"window must be between 1 and the N = {n_steps} steps of the grid, got {window}")
@@ -167,11 +150,8 @@ def validation_loss(train, frozen, spec, inv, t0, h, x, u, *, model, integrator,
 def train_epoch(train, frozen, opt_state, key, spec, inv, t0, h, x_all, u_all, *, model, integrator, optimizer,
                 shape, batch_size):
     """One epoch: a permutation of the B trajectories from ``key``, padded with weight-0 repeats to whole batches of
-    ``batch_size``, and one optimiser step per batch on the loss of the layout ``shape = (N, W, tile, gamma)``.
-
-    Differentiates with respect to ``train`` (the trainable part) only. Returns ``(train, opt_state, key,
-    mean training loss over the epoch's batches at their pre-update parameters, all losses and gradients finite)``.
-    Compiled once per (model, integrator, optimizer, layout, shapes): every epoch of a fit reuses it.
+    ``batch_size``, one optimiser step per batch on the loss of the layout ``shape = (N, W, tile, gamma)``. Returns
+    ``(train, opt_state, key, mean training loss at the batches' pre-update parameters, all finite)``.
     """
     TRACES["train_epoch"] += 1
     n_steps, window, tile, gamma = shape

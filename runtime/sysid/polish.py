@@ -25,8 +25,8 @@ import numpy as np
 import optax
 import optax.tree_utils as otu
 
+from ..learn.dataset import _count
 from ..learn.loop import Stop
-from .fit import _int
 from .losses import SCALES, fit_integrator, layout, state_scale, window_losses
 
 __all__ = ["PolishConfig", "PolishResult", "polish", "TRACES"]
@@ -54,9 +54,9 @@ class PolishConfig:
     gtol: float = 0.0
 
     def __post_init__(self):
-        if not (_int(self.iterations) and self.iterations >= 1):
+        if _count(self.iterations) < 1:
             raise ValueError(f"PolishConfig: iterations must be an integer >= 1, got {self.iterations!r}")
-        if self.window is not None and not (_int(self.window) and self.window >= 1):
+        if self.window is not None and _count(self.window) < 1:
             raise ValueError(f"PolishConfig: window must be an integer >= 1 or None, got {self.window!r}")
         for name in ("anchor_weight", "gtol"):
             v = getattr(self, name)

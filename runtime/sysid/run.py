@@ -68,7 +68,8 @@ class SysidConfig:
             the same.
         max_param_error: a parametric fit fails (exit 1) when a learned parameter is off the value the data were
             made with by more than this fraction and by more than 3 of its standard errors (what the data's noise
-            explains; least squares only), unless the data cannot identify it; None: no check.
+            explains; least squares only), unless the data cannot identify it; None (``--set
+            max_param_error=null``): no check.
         max_gap: the experiment fails (exit 1) when the plan costs more than this fraction above the true optimum
             on the true system (the record's ``relative_gap``); None: no bound.
     """

@@ -1,8 +1,5 @@
-"""``process``: local worker processes, started with ``spawn``.
-
-JAX must not be forked once it has started (its thread pools and runtime do not survive ``fork``), and the process
-running the sweep has usually started it, so the workers are fresh interpreters (the ``spawn`` context), never forks.
-Each worker runs many tasks, reusing what it compiled; the workers share the persistent compilation cache.
+"""``process``: local worker processes, fresh interpreters (the ``spawn`` context): JAX does not survive a ``fork``
+once started. Each worker runs many tasks, reusing what it compiled.
 """
 
 from __future__ import annotations

@@ -1,9 +1,5 @@
-"""``ray``: the tasks on a Ray cluster (``--backend ray [--address ADDR]``; Ray is the optional extra ``ray``).
-
-Without an address a private local cluster is started for the sweep and stopped after it; with one (``auto``, or
-``HOST:PORT`` of ``ray start --head``) the sweep connects to that cluster. Every node needs this package installed
-(the workers import ``myriad``); Ray starts its workers as fresh processes, so JAX is never forked. Each task asks
-for one CPU; ``workers`` caps how many run at once.
+"""``ray``: the tasks on a Ray cluster, a private local one for the sweep or one at ``address`` (``auto``, or
+``HOST:PORT`` of ``ray start --head``); each task asks for one CPU (the README's "Backends").
 """
 
 from __future__ import annotations

@@ -1,9 +1,5 @@
-"""What a kind of sweep method is: checked settings, an optional check against a system, and one run.
-
-A kind is one file (a final subclass of :class:`AbstractKind` naming its frozen config class, the one the Python API
-and the command use, e.g. :class:`~myriad.runtime.solve_config.SolveConfig`) plus one line in ``KINDS``
-(``kinds/__init__.py``); see the sweep README.
-"""
+"""What a kind of sweep method is: checked settings, an optional check against a system, and one run (adding one:
+the sweep README)."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
 """``mpc``: one closed-loop episode of the receding-horizon policy (:mod:`myriad.runtime.rl.mpc`) in the system's
-reference environment, scored against the shipped reference scores.
-
-    --method mpc                                         # nominal model, re-plan every 10 steps
-    --method "mis=mpc:mismatch=0.1" "noisy=mpc:obs_noise=0.02,replan_every=5"
-
-The settings are the fields of :class:`MpcConfig` but ``seed``, which is the task's: it draws the signs of the
-planner's parameter errors (``mismatch`` > 0) and the observation noise (``obs_noise`` > 0); without either the
-episode is deterministic.
+reference environment, scored against the shipped reference scores. The task's seed draws the signs of the
+planner's parameter errors (``mismatch`` > 0) and the observation noise (``obs_noise`` > 0).
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
-"""``solve``: one trajectory optimisation, as ``myriad solve`` does it, optionally from a seeded start state.
-
-    --method solve:transcription=hermite_simpson,intervals=50,solver=ipopt
-    --method solve:solver_options={"max_iter":50},x0_std=0.05
-
-The settings are the fields of :class:`~myriad.runtime.solve_config.SolveConfig` (``myriad solve``'s flags), but
-``seed``, which is the task's. The solve itself is deterministic; the seed matters only with ``x0_std`` > 0.
+"""``solve``: one trajectory optimisation, as ``myriad solve`` does it (the settings are
+:class:`~myriad.runtime.solve_config.SolveConfig`'s fields), optionally from a start state drawn from the task's seed
+(``x0_std`` > 0).
 """
 
 from __future__ import annotations

@@ -1,11 +1,5 @@
-"""``sysid``: one system-identification experiment (:func:`~myriad.runtime.sysid.run.run_sysid`) with the task's
-seed: sample trajectories, fit, plan on the learned model, judge the plan on the true system.
-
-    --method sysid                                   # parametric, least squares
-    --method node=sysid:model=node,epochs=200,hidden=[32,32]
-
-The settings are the fields of :class:`~myriad.runtime.sysid.run.SysidConfig` (``myriad sysid``'s flags), but
-``seed``, which is the task's.
+"""``sysid``: one system-identification experiment (:func:`~myriad.runtime.sysid.run.run_sysid`; the settings are
+:class:`~myriad.runtime.sysid.run.SysidConfig`'s fields) with the task's seed.
 """
 
 from __future__ import annotations
