@@ -34,10 +34,22 @@ import numpy as np
 
 from ..compilation import programs
 from ..data import require_float64
-from .base import CompiledFunction, cached, canonical_data, constraint_violations, program_key, unstack
+from ..nlp import NLP, NLPResult
+from ..status import Status
+from .base import (
+    AbstractNLPSolver,
+    CompiledFunction,
+    cached,
+    canonical_data,
+    constraint_violation,
+    constraint_violations,
+    initial_point,
+    program_key,
+    unstack,
+)
 from .stepper import Stepper, queued
 
-__all__ = ["AbstractPureSolver", "ScaledEvaluation"]
+__all__ = ["AbstractPureSolver", "PureNLPSolver", "ScaledEvaluation"]
 
 
 class ScaledEvaluation:
@@ -53,10 +65,6 @@ class ScaledEvaluation:
 
         self.evaluate = CompiledFunction(unscaled, program_key(problem.key, "evaluate"))
         self._evaluate_batch = CompiledFunction(jax.vmap(unscaled), program_key(problem.key, "evaluate:batch"))
-
-    def prepare_evaluation(self, z: np.ndarray, data: Any) -> float:
-        """Compile the objective and constraints used to report the result; returns the seconds spent."""
-        return self.evaluate.compile(z, data)
 
     def values(self, z: np.ndarray, data: Any) -> tuple[float, np.ndarray | None]:
         """``(F(z), c(z))`` on the host; ``c`` is None when the problem has no constraints."""
@@ -269,3 +277,54 @@ class AbstractPureSolver(abc.ABC):
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
             strategy, self.pure_solve_batch(problem), chunk,
             self.batch_stepper(problem) if strategy == "vmap" else None))
+
+
+class PureNLPSolver(AbstractPureSolver, AbstractNLPSolver):
+    """An NLP solver of the pure tier: what the extragradient and the interior point share. Its compiled parts for an
+    NLP (:meth:`_compiled`) are a :class:`ScaledEvaluation`, so a report re-evaluates the objective and violation at
+    ``z`` on the host; the solver says only how its output maps to a :class:`~myriad.runtime.status.Status`."""
+
+    @abc.abstractmethod
+    def _compiled(self, nlp: NLP) -> ScaledEvaluation:
+        """The solver's compiled parts for ``nlp`` (cached per NLP and configuration)."""
+
+    @abc.abstractmethod
+    def outcome(self, out: Any, z: np.ndarray, objective: float, violation: float) -> tuple[Status, int, str]:
+        """``(status, solver_code, message)`` of one member's output, given its host-side objective and violation."""
+
+    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        return self._solve_single(nlp, data, z0)
+
+    def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
+        return initial_point(nlp, data, z0)
+
+    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
+        return self._compiled(nlp).evaluate.compile(z0, data)
+
+    def batch_values(self, nlp: NLP, out: Any, batched_data: Any) -> list:
+        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
+
+    def report(self, nlp: NLP, out: Any, data: Any, compile_seconds: float, solve_seconds: float,
+               values: tuple | None = None) -> NLPResult:
+        """One member's NLPResult: objective and violation re-evaluated at ``z`` on the host (or the batch's
+        ``values``), the status from :meth:`outcome`."""
+        fns = self._compiled(nlp)
+        z = np.asarray(out.z)
+        if values is None:
+            objective, c = fns.values(z, data)
+            violation = constraint_violation(nlp, z, c)
+        else:  # the batch's (batch_values)
+            objective, c, violation = values
+        status, code, message = self.outcome(out, z, objective, violation)
+        return NLPResult(
+            z=z,
+            objective=objective,
+            status=status,
+            solver_code=code,
+            message=message,
+            iterations=int(out.iterations),
+            constraint_violation=violation,
+            multipliers=np.asarray(out.multipliers) if fns.problem.n_constraints else None,
+            compile_seconds=compile_seconds,
+            solve_seconds=solve_seconds,
+        )

@@ -10,17 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ...nlp import NLP, NLPResult
+from ...nlp import NLP
 from ...status import Status
-from ..base import (
-    AbstractNLPSolver,
-    ScaledProblem,
-    cached,
-    constraint_violation,
-    initial_point,
-)
+from ..base import ScaledProblem, cached
 from ..implicit import differentiable, estimated_active
-from ..pure import AbstractPureSolver, ScaledEvaluation
+from ..pure import PureNLPSolver, ScaledEvaluation
 from ..stepper import Stepper
 from .loop import ExtragradientSolution, ExtragradientStepper
 
@@ -37,7 +31,7 @@ _MESSAGES = {
 
 @final
 @dataclasses.dataclass(frozen=True)
-class Extragradient(AbstractPureSolver, AbstractNLPSolver):
+class Extragradient(PureNLPSolver):
     r"""Gradient descent-ascent on the (augmented) Lagrangian with an extragradient look-ahead, in pure JAX.
 
     With equalities ``h(w) = 0`` and one-sided inequalities ``g(w) <= 0`` (each finite side of a non-equality row),
@@ -155,11 +149,6 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
                 raise TypeError(f"Extragradient({name}=...): expected an optax.GradientTransformation or a learning "
                                 f"rate, got {type(value).__name__}")
 
-    # ---- public API --------------------------------------------------------------------------------------------
-
-    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
-        return self._solve_single(nlp, data, z0)
-
     # ---- the pure tier (see AbstractPureSolver) ----------------------------------------------------------------
 
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
@@ -184,48 +173,17 @@ class Extragradient(AbstractPureSolver, AbstractNLPSolver):
     def batch_stepper(self, nlp: NLP) -> Stepper:
         return self._compiled(nlp).stepper.stepper
 
-    def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
-        return initial_point(nlp, data, z0)
-
-    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
-        return self._compiled(nlp).prepare_evaluation(z0, data)
-
-    def batch_values(self, nlp: NLP, out: ExtragradientSolution, batched_data: Any) -> list:
-        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
-
-    def report(self, nlp: NLP, out: ExtragradientSolution, data: Any, compile_seconds: float,
-               solve_seconds: float, values: tuple | None = None) -> NLPResult:
-        """The NLPResult of one member: objective and violation re-evaluated at ``z`` in float64 on the host.
-
-        Status: ``CONVERGED`` when the loop's KKT test passed and the objective is finite; ``ITERATION_LIMIT`` at
-        ``max_iter`` at a finite point; otherwise ``NOT_FINITE`` (the loop stops early only at a non-finite point).
-        """
-        fns = self._compiled(nlp)
-        z = np.asarray(out.z)
-        if values is None:
-            objective, c = fns.values(z, data)
-            violation = constraint_violation(nlp, z, c)
-        else:  # the batch's (batch_values)
-            objective, c, violation = values
-        converged = bool(out.converged) and np.isfinite(objective)
-        if converged:
+    def outcome(self, out: ExtragradientSolution, z: np.ndarray, objective: float,
+                violation: float) -> tuple[Status, int, str]:
+        """``CONVERGED`` when the loop's KKT test passed and the objective is finite; ``ITERATION_LIMIT`` at
+        ``max_iter`` at a finite point; otherwise ``NOT_FINITE`` (the loop stops early only at a non-finite point)."""
+        if bool(out.converged) and np.isfinite(objective):
             status = Status.CONVERGED
         elif int(out.iterations) >= self.max_iter and np.all(np.isfinite(z)) and np.isfinite(objective):
             status = Status.ITERATION_LIMIT
-        else:  # the loop stops early only at a non-finite point
+        else:
             status = Status.NOT_FINITE
-        return NLPResult(
-            z=z,
-            objective=objective,
-            status=status,
-            solver_code=int(status),
-            message=_MESSAGES[status],
-            iterations=int(out.iterations),
-            constraint_violation=violation,
-            multipliers=np.asarray(out.multipliers) if fns.problem.n_constraints else None,
-            compile_seconds=compile_seconds,
-            solve_seconds=solve_seconds,
-        )
+        return status, int(status), _MESSAGES[status]
 
     # ---- implementation ----------------------------------------------------------------------------------------
 

@@ -52,20 +52,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve, solve_triangular
 
-from .rules import (  # noqa: F401  (the inertia correction's constants, re-exported for its users)
-    DELTA_C_BAR,
-    DELTA_C_EXPONENT,
-    DELTA_W_FIRST,
-    DELTA_W_MAX,
-    DELTA_W_MIN,
-    GROW,
-    GROW_FIRST,
-    MAX_ATTEMPTS,
-    RHO_RETRIES,
-    RHO_RETRY,
-    SHRINK,
-    inertia_schedule,
-)
+from .rules import DELTA_C_BAR, DELTA_C_EXPONENT, DELTA_W_MAX, MAX_ATTEMPTS, RHO_RETRIES, RHO_RETRY, inertia_schedule
 
 __all__ = ["Factors", "cholesky", "factorize_with_inertia", "regularized_cholesky", "solve"]
 

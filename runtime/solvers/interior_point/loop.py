@@ -41,13 +41,12 @@ from ...status import Status
 from ..stepper import Stepper
 from . import kkt
 from .problem import Layout
-from .restoration import Restoration, make_restoration
+from .restoration import Restoration, RestorationPhase
 from .rules import (
     EPS,
     FILTER_SIZE,
     KAPPA_EPS,
     MAX_TRIALS,
-    S_MAX,
     TAU_MIN,
     THETA_MAX_FACT,
     THETA_MIN_FACT,
@@ -57,6 +56,7 @@ from .rules import (
     alpha_min,
     decrease_mu,
     fraction_to_boundary,
+    scaled_error,
 )
 
 __all__ = ["InteriorPointSolution", "InteriorPointStepper", "WarmStart"]
@@ -93,7 +93,7 @@ class InteriorPointSolution(NamedTuple):
     """One solve's output (pure JAX; a batch has a leading axis on every field).
 
     ``z``, ``objective`` and ``multipliers`` are differentiable with respect to ``data`` in reverse mode (see
-    :mod:`.implicit`); the rest is not.
+    :mod:`..implicit`); the rest is not.
 
     Attributes:
         z: the final iterate in the NLP's variables; objective: ``F(z)``.
@@ -195,7 +195,7 @@ class InteriorPointStepper:
         self.bounds = Bounds(layout)
         self.scale = jnp.asarray(layout.problem.scale)
         self.mu_min = tol / 10.0
-        self.idle, self.enter, self.restoration_step = make_restoration(layout, tol, constr_viol_tol, self.mu_min)
+        self.restoration = RestorationPhase(layout, tol, constr_viol_tol, self.mu_min)
         # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
         self.factorize_with_inertia, self.newton_solve = (
             (layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
@@ -212,15 +212,11 @@ class InteriorPointStepper:
 
     def error(self, x, lam, zl, zu, grad, g, jac, mu):
         """IPOPT's E_mu (its eq. 5) with s_max = 100."""
-        b, m = self.bounds, self.m
+        b = self.bounds
         gl, gu = b.gaps(x)
-        dual = grad + (jac.T @ lam if m else 0.0) - zl + zu
+        dual = grad + (jac.T @ lam if self.m else 0.0) - zl + zu
         compl = jnp.concatenate([jnp.where(b.hl, gl * zl - mu, 0.0), jnp.where(b.hu, gu * zu - mu, 0.0)])
-        z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu))
-        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + b.count)) / S_MAX
-        s_c = jnp.maximum(S_MAX, z_sum / b.count) / S_MAX
-        inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
-        return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g)), inf(compl) / s_c)
+        return scaled_error(dual, g, compl, lam, jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)), b.count)
 
     def _evaluate(self, data: Any, st: _State) -> tuple[Any, jax.Array, jax.Array, jax.Array, jax.Array]:
         """``(point, sigma, row_scale, kkt, stop)`` at the state's iterate: its derivatives (with the scaling
@@ -263,7 +259,7 @@ class InteriorPointStepper:
         x = st.x
 
         def restore(_):
-            return self.restoration_step(st, pt, data)
+            return self.restoration.step(st, pt, data)
 
         def advance(_):
             return self._advance(data, st, pt, sigma, row_scale)
@@ -380,7 +376,7 @@ class InteriorPointStepper:
         filter_next = jnp.where(flt.reset, 0, st.filter_next) + grow.astype(jnp.int32)
 
         zl_new, zu_new = self.bounds.clip_multipliers(x_new, zl + d.alpha_z * d.dzl, zu + d.alpha_z * d.dzu, d.mu)
-        rs, lam_r, zl_r, zu_r = self.enter(x, pt.g, zl, zu, d.mu)
+        rs, lam_r, zl_r, zu_r = self.restoration.enter(x, pt.g, zl, zu, d.mu)
         pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
         new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
                           zu=pick(zu_r, zu_new), mu=d.mu, rs=jax.tree.map(pick, rs, st.rs),
@@ -399,7 +395,8 @@ class InteriorPointStepper:
         one = jnp.ones((), x0.dtype)
         empty = jnp.full(FILTER_SIZE, jnp.inf, x0.dtype)
         int0 = jnp.array(0, jnp.int32)
-        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, self.idle(x0), one, one,
+        rs = self.restoration.idle(x0)
+        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, rs, one, one,
                       empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one,
                       jnp.nan * one, jnp.inf * one, int0, ws.sigma, ws.row_scale, ws.fresh > 0.5)
 

@@ -55,7 +55,6 @@ from .rules import (
     KAPPA_EPS,
     KAPPA_SIGMA,
     MAX_TRIALS,
-    S_MAX,
     TAU_MIN,
     Bounds,
     acceptable,
@@ -63,9 +62,10 @@ from .rules import (
     alpha_min,
     decrease_mu,
     fraction_to_boundary,
+    scaled_error,
 )
 
-__all__ = ["Restoration", "RestorationPhase", "make_restoration"]
+__all__ = ["Restoration", "RestorationPhase"]
 
 # IPOPT's resto_penalty_parameter, required_infeasibility_reduction, bound_mult_reset_threshold, and the restoration
 # filter's theta_max_fact (1e8, raised from the main 1e4) and theta_min_fact on a problem that starts feasible.
@@ -115,8 +115,9 @@ class _Step(NamedTuple):
     slope: jax.Array
 
 
-def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
-    """``(idle, enter, step)`` of a :class:`RestorationPhase` for one barrier problem (see the module docstring):
+class RestorationPhase:
+    """The restoration phase of one barrier problem (see the module docstring); an iteration is :meth:`_direction`,
+    :meth:`_search` and the way back to the main iteration.
 
     * ``idle(x0)``: an inactive :class:`Restoration` (the loop's initial state);
     * ``enter(x, g, zl, zu, mu) -> (Restoration, lam, zl, zu)``: start the phase at ``x``;
@@ -124,13 +125,6 @@ def make_restoration(layout, tol: float, constr_viol_tol: float, mu_min: float):
       ``lam``, ``zl``, ``zu``, ``rs``, main filter and ``mu``) at the point ``pt``, whose Hessian is the constraints'
       alone; it leaves the phase (``rs.active`` False, main multipliers restored) when the main filter accepts.
     """
-    phase = RestorationPhase(layout, tol, constr_viol_tol, mu_min)
-    return phase.idle, phase.enter, phase.step
-
-
-class RestorationPhase:
-    """The restoration phase of one barrier problem: :meth:`idle`, :meth:`enter` and :meth:`step` (see
-    :func:`make_restoration`); an iteration is :meth:`_direction`, :meth:`_search` and :meth:`_leave`."""
 
     def __init__(self, layout, tol: float, constr_viol_tol: float, mu_min: float):
         self.layout, self.tol, self.constr_viol_tol, self.mu_min = layout, tol, constr_viol_tol, mu_min
@@ -184,18 +178,15 @@ class RestorationPhase:
 
     def _error(self, st, pt, mu_):
         """IPOPT's E_mu of the restoration problem (its eq. 5), at zeta = sqrt of the current mu."""
-        rs, x, lam, zl, zu, m, bounds = st.rs, st.x, st.lam, st.zl, st.zu, self.m, self.bounds
+        rs, x, lam, zl, zu, bounds = st.rs, st.x, st.lam, st.zl, st.zu, self.bounds
         p, n_, zp, zn, g, jac = rs.p, rs.n, rs.zp, rs.zn, pt.g, pt.jac
         gl, gu = bounds.gaps(x)
-        inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
         dual_x = jnp.sqrt(rs.mu) * self._proximity(rs) * (x - rs.x_ref) + jac.T @ lam - zl + zu
         dual = jnp.concatenate([dual_x, RHO - lam - zp, RHO + lam - zn])
         compl = jnp.concatenate([jnp.where(bounds.hl, gl * zl - mu_, 0.0), jnp.where(bounds.hu, gu * zu - mu_, 0.0),
                                  p * zp - mu_, n_ * zn - mu_])
         z_sum = jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)) + jnp.sum(zp) + jnp.sum(zn)
-        s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (m + self.n_bounds)) / S_MAX
-        s_c = jnp.maximum(S_MAX, z_sum / self.n_bounds) / S_MAX
-        return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(g - p + n_)), inf(compl) / s_c)
+        return scaled_error(dual, g - p + n_, compl, lam, z_sum, self.n_bounds)
 
     def _direction(self, st, pt) -> _Step:
         """The barrier update and the Newton step of the restoration problem, ``dp``, ``dn`` and the bound

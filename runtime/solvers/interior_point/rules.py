@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule",
-           "residual_ratio", "condition_bound"]
+           "residual_ratio", "condition_bound", "scaled_error"]
 
 # IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
 KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -62,6 +62,15 @@ class Bounds:
         gl, gu = self.gaps(x)
         return (jnp.where(self.hl, jnp.clip(zl, mu / (KAPPA_SIGMA * gl), KAPPA_SIGMA * mu / gl), 0.0),
                 jnp.where(self.hu, jnp.clip(zu, mu / (KAPPA_SIGMA * gu), KAPPA_SIGMA * mu / gu), 0.0))
+
+
+def scaled_error(dual, primal, compl, lam, z_sum, count):
+    """IPOPT's optimality error E_mu (its eq. 5, s_max = 100) from the dual, primal and complementarity residuals,
+    ``lam`` the constraint multipliers and ``z_sum`` the 1-norm of the ``count`` bound multipliers."""
+    inf = lambda v: jnp.max(jnp.abs(v), initial=0.0)  # noqa: E731
+    s_d = jnp.maximum(S_MAX, (jnp.sum(jnp.abs(lam)) + z_sum) / (lam.shape[0] + count)) / S_MAX
+    s_c = jnp.maximum(S_MAX, z_sum / count) / S_MAX
+    return jnp.maximum(jnp.maximum(inf(dual) / s_d, inf(primal)), inf(compl) / s_c)
 
 
 def decrease_mu(mu, mu_min):

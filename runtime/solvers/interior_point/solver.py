@@ -7,14 +7,15 @@ from collections.abc import Callable
 from typing import Any, ClassVar, final
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from ...nlp import NLP, NLPResult
+from ...nlp import NLP
 from ...status import Status
-from ..base import AbstractNLPSolver, ScaledProblem, cached, constraint_violation, initial_point
-from ..pure import AbstractPureSolver, ScaledEvaluation
+from ..base import ScaledProblem, cached
+from ..implicit import Active, differentiable
+from ..pure import PureNLPSolver, ScaledEvaluation
 from ..stepper import Stepper
-from .implicit import differentiable
 from .loop import InteriorPointSolution, InteriorPointStepper, WarmStart
 from .problem import Layout
 
@@ -46,7 +47,7 @@ _MESSAGES = {
 
 @final
 @dataclasses.dataclass(frozen=True)
-class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
+class InteriorPoint(PureNLPSolver):
     r"""A primal-dual interior-point method with exact second derivatives, entirely in JAX (one ``lax.while_loop``).
 
     After Wächter & Biegler (2006), the algorithm of IPOPT: inequality rows get slacks, bounds are handled by
@@ -82,7 +83,7 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
     factorisations of 101 variables do not, while a single solve of Epidemic or Van der Pol took 2.3x as long with
     it as with the dense step.
     ``jax.grad`` of a function of its ``z``, ``objective`` or ``multipliers`` with respect to ``data`` works through
-    a ``jax.custom_vjp`` (implicit function theorem, :mod:`.implicit`), also under ``vmap``; a solve that did not
+    a ``jax.custom_vjp`` (implicit function theorem, :mod:`..implicit`), also under ``vmap``; a solve that did not
     converge gives NaN cotangents, never a silent gradient. Forward mode (``jax.jvp``) is not supported.
 
     Attributes:
@@ -129,11 +130,6 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
                                                  and self.chunk > 0)):
             raise ValueError(f"InteriorPoint: chunk must be 'auto', None or a positive int, got {self.chunk!r}")
 
-    # ---- public API --------------------------------------------------------------------------------------------
-
-    def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
-        return self._solve_single(nlp, data, z0)
-
     # ---- the pure tier (see AbstractPureSolver) ----------------------------------------------------------------
 
     def pure_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
@@ -141,7 +137,7 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
 
     def differentiable_solve(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         """:meth:`pure_solve`, which is differentiable already (the implicit-function rule at the solution's own
-        active sets and multipliers, :mod:`.implicit`)."""
+        active sets and multipliers, :mod:`..implicit`)."""
         return self.pure_solve(nlp)
 
     def pure_solve_batch(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
@@ -159,9 +155,6 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
         :meth:`pure_solve` does with an array ``z0``, as a start that a ``jnp.where`` can choose against the
         ``warm`` of an earlier solution (one program for both)."""
         return self._compiled(nlp).cold
-
-    def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
-        return initial_point(nlp, data, z0)
 
     def batch_strategy(self, problem: Any = None) -> str:
         """``batch``, with ``"auto"`` resolved: vmap on an accelerator; on a CPU, vmap where the Newton step can be
@@ -188,38 +181,14 @@ class InteriorPoint(AbstractPureSolver, AbstractNLPSolver):
             return self.kkt
         return "riccati" if vmapped and _stagewise(nlp) else "dense"
 
-    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
-        return self._compiled(nlp).prepare_evaluation(z0, data)
-
-    def batch_values(self, nlp: NLP, out: InteriorPointSolution, batched_data: Any) -> list:
-        return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
-
-    def report(self, nlp: NLP, out: InteriorPointSolution, data: Any, compile_seconds: float,
-               solve_seconds: float, values: tuple | None = None) -> NLPResult:
-        """One member's NLPResult: objective and violation re-evaluated at ``z`` on the host; ``CONVERGED`` only if
-        the loop converged *and* the host's violation and objective agree (finite, within ``constr_viol_tol``)."""
-        fns = self._compiled(nlp)
-        z = np.asarray(out.z)
-        if values is None:
-            objective, c = fns.values(z, data)
-            violation = constraint_violation(nlp, z, c)
-        else:  # the batch's (batch_values)
-            objective, c, violation = values
+    def outcome(self, out: InteriorPointSolution, z: np.ndarray, objective: float,
+                violation: float) -> tuple[Status, int, str]:
+        """The loop's status; ``CONVERGED`` only if the host's violation and objective agree (finite, within
+        ``constr_viol_tol``)."""
         status = Status(int(out.status))
         if status is Status.CONVERGED and not (np.isfinite(objective) and violation <= self.constr_viol_tol):
             status = Status.NOT_CONVERGED
-        return NLPResult(
-            z=z,
-            objective=objective,
-            status=status,
-            solver_code=int(out.status),
-            message=_MESSAGES[status],
-            iterations=int(out.iterations),
-            constraint_violation=violation,
-            multipliers=np.asarray(out.multipliers) if fns.problem.n_constraints else None,
-            compile_seconds=compile_seconds,
-            solve_seconds=solve_seconds,
-        )
+        return status, int(out.status), _MESSAGES[status]
 
     # ---- implementation ----------------------------------------------------------------------------------------
 
@@ -248,4 +217,13 @@ class _Compiled(ScaledEvaluation):
         stepper = InteriorPointStepper(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
                                        solver.second_order_correction)
         self.cold, self.stepper = stepper.cold, stepper.stepper
-        self.raw = differentiable(stepper.stepper.solve, problem)
+        self.raw = differentiable(stepper.stepper.solve, problem, _held,
+                                  lambda out: out.status == int(Status.CONVERGED), multipliers=True)
+
+
+def _held(data: Any, out: InteriorPointSolution) -> Active:
+    """Where the implicit rule linearises: the solution's own verdict, a bound multiplier larger than the gap to its
+    bound (at the barrier solution ``z_l (w - l) = mu``: the two sides are ``sqrt(mu)`` apart only for a degenerate
+    bound), a row active when it is an equality or its slack is held; and its own multipliers (IPOPT's sign)."""
+    y = jnp.where(out.active_rows, out.multipliers, 0.0)
+    return Active(y, ~(out.active_lower | out.active_upper), out.active_rows)

@@ -10,7 +10,7 @@ import pytest
 
 from myriad.runtime import Trapezoidal, load, solve
 from myriad.runtime.solvers import InteriorPoint, Ipopt
-from myriad.runtime.solvers.interior_point import kkt
+from myriad.runtime.solvers.interior_point import kkt, rules
 
 jax.config.update("jax_enable_x64", True)
 
@@ -43,7 +43,7 @@ def test_nullspace_step_solves_the_kkt_system(negative):
     if reduced > 0:
         assert float(delta_w) == 0.0
     else:
-        assert float(delta_w) + reduced > 0 and float(delta_w) / kkt.GROW_FIRST + reduced <= 0  # the schedule's first
+        assert float(delta_w) + reduced > 0 and float(delta_w) / rules.GROW_FIRST + reduced <= 0  # the schedule's first
     rng = np.random.default_rng(1)
     r1, r2 = jnp.asarray(rng.standard_normal(n)), jnp.asarray(rng.standard_normal(m))
     dx, dl = kkt.solve(factors, jac, r1, r2)

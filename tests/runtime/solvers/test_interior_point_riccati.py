@@ -19,7 +19,7 @@ from myriad.runtime.data import default_data
 from myriad.runtime.integrators import Heun
 from myriad.runtime.solvers import InteriorPoint, Ipopt
 from myriad.runtime.solvers.base import ScaledProblem
-from myriad.runtime.solvers.interior_point import kkt
+from myriad.runtime.solvers.interior_point import kkt, rules
 from myriad.runtime.solvers.interior_point.problem import Layout
 from myriad.runtime.solvers.interior_point.riccati import Riccati, StageHessian, chain
 from myriad.runtime.solvers.interior_point.rules import CHECK_COND, condition_bound, residual_ratio
@@ -95,7 +95,7 @@ def test_step_and_inertia_against_dense(shared, negative):
     big = np.block([[h_s, np.asarray(jac).T], [np.asarray(jac), -float(factors.delta_c) * np.eye(m)]])
     assert _inertia(big) == (n_x, m)
     if float(delta_w) > 0:  # the schedule's previous value would not have done
-        smaller = big - (1 - 1 / kkt.GROW_FIRST) * float(delta_w) * np.diag(np.r_[np.ones(n_x), np.zeros(m)])
+        smaller = big - (1 - 1 / rules.GROW_FIRST) * float(delta_w) * np.diag(np.r_[np.ones(n_x), np.zeros(m)])
         assert _inertia(smaller) != (n_x, m)
     r1, r2 = rng.standard_normal(n_x), rng.standard_normal(m)
     dx, dl = ric.solve(factors, jac, jnp.asarray(r1), jnp.asarray(r2))
