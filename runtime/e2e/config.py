@@ -38,22 +38,18 @@ class E2EConfig:
             published. A name (``"unrolled"``, ``"implicit"``) is read as that adjoint with the default K.
         iterations: the most outer iterations (one optimiser update each); None: 1200 for a parametric model, 600
             for a Neural ODE.
-        optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (on theta and the
-            learned cost weights together).
-        reset_every: re-start the planner from the transcription's initial guess (duals 0) every this many
-            iterations (the published 1000); None: never after the first.
+        optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (theta and cost weights).
+        reset_every: restart the planner from the initial guess (duals 0) every this many iterations; None: never.
         loss: imitate the expert's ``"controls"`` (published: mean over nodes of ||u_t - u*_t||^2), its
             ``"states"`` (the model's planned states against the expert's), or ``"both"`` (the sum).
-        on_failure: implicit mode, when the solve did not converge or the KKT solve failed: ``"skip"`` the update,
-            fall back to ``"unrolled"`` (K unrolled steps from the unconverged iterate), or ``"backtrack"``: take the
-            last step whose plan converged again at half the length (a step can make the model's planning problem
-            infeasible; skipping would leave the learner there). Each is counted.
+        on_failure: implicit mode, when the solve or the KKT solve failed: ``"skip"`` the update, ``"unrolled"``
+            (K unrolled steps from the unconverged iterate), or ``"backtrack"``: the last step whose plan converged
+            again at half the length (a step can make the model's plan infeasible; skipping would stay there).
         learn_dynamics: learn the model's parameters (False, with ``learn_cost``: inverse optimal control).
         learn_cost: names of the spec's cost parameters to learn (their start: ``cost_guess``).
         cost_guess: ``((name, value), ...)``, the starting values of ``learn_cost`` (default: the spec's value / 2).
         hidden, activation: the Neural ODE's network.
-        planner: the :class:`Extragradient` whose step rules, penalty, bounds and scaling the unrolled planner uses
-            (None: :func:`~.planner.default_planner_solver`).
+        planner: the :class:`Extragradient` of the unrolled planner (None: :func:`~.planner.default_planner_solver`).
         implicit_solver: the solver run to tolerance in implicit mode: an :class:`Extragradient` (None: tol 1e-9,
             20,000 iterations) or an :class:`InteriorPoint` (much faster where final values are required).
         checkpoint_every: iterations between checkpoints (with a checkpoint folder); None: 10 per run.
@@ -62,14 +58,12 @@ class E2EConfig:
         init: where theta starts: ``"guess"`` (the spec's guesses; a Neural ODE's random weights, normalised by the
             bounds), ``"sysid"`` (fitted first by system identification, ``SysidConfig(model, hidden, activation,
             seed, rounds=1)``), or a ``SysidConfig`` for that fit (its model, hidden and activation must be these).
-        soft_state_bounds: None (the spec's final-state bounds are hard when planning the model), or c > 0: plan the
-            model with elastic final-state bounds, penalty ``c * max(1, |J*|)`` per unit of scaled violation (J*: the
-            expert's cost). A learned model need not keep a state inside its bounds where the true one does by itself,
-            and with hard bounds its plan is infeasible; c = 10 leaves the true optimum unchanged. They apply to the
-            plans solved to tolerance, not to the unrolled planner, whose K steps cannot fail. Single shooting only.
-        reaim: after training, re-aim the converged plan at the required final values at most this many times from
-            observed runs of the true system (:mod:`~myriad.runtime.learn.reaim`); None: 6 for a Neural ODE, 0 for a
-            parametric model. It changes only the judged plan, not the training.
+        soft_state_bounds: None (hard final-state bounds), or c > 0: plan the model with elastic final-state bounds,
+            penalty ``c * max(1, |J*|)`` per unit of scaled violation (J*: the expert's cost), as a learned model need
+            not keep a state in bounds where the true one does by itself; c = 10 leaves the true optimum unchanged.
+            Not in the unrolled planner, whose K steps cannot fail. Single shooting only.
+        reaim: re-aim the trained model's plan at the required final values at most this many times from observed
+            true runs (:mod:`~myriad.runtime.learn.reaim`; not the training); None: 6 for a Neural ODE, 0 parametric.
     """
 
     model: str = "parametric"

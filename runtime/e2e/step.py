@@ -1,11 +1,10 @@
 r"""One iteration of Algorithm 2 as one jit-compiled program: plan on the model, imitate the expert, update theta.
 
 With ``tr`` the learned leaves (the model's trainable parameters and any learned cost weights) and ``D(tr)`` the
-problem data of the model's NLP (``{"spec": p[cost <- tr.cost], "model": theta(tr.model)}``, x0), the plan is
-``z_K(tr; s)``, K planner steps from the warm state ``s`` (unrolled), or ``z*(tr)`` solved to tolerance (implicit,
-with the ``on_failure`` rule), and ``tr <- tr + optax_update(d loss(z, D(tr)) / d tr)`` (the contract: README.md in
-this folder, "One iteration"). Every input is an array (the reset flag and the loss's weights too), so the program is
-traced once per (model, NLP, configuration, shapes); ``TRACES`` counts the traces.
+model NLP's data, the plan ``z`` is K planner steps from a warm state (unrolled) or a solve to tolerance (implicit),
+and ``tr <- tr + optax_update(d loss(z, D(tr)) / d tr)`` (README.md in this folder, "One iteration"). Every input is
+an array (the reset flag and the loss's weights too), so the program is traced once per (model, NLP, configuration,
+shapes); ``TRACES`` counts the traces.
 """
 
 from __future__ import annotations
@@ -39,21 +38,14 @@ MIN_STEP_SCALE = 2.0**-20
 
 
 class Carry(NamedTuple):
-    """What one iteration hands the next, one type whatever the adjoint (a field the adjoint does not use is None).
+    """What one iteration hands the next, one type whatever the adjoint (a field the adjoint does not use is None)."""
 
-    Attributes:
-        plan: unrolled: the planner's warm state (:class:`~.planner.PlannerState`).
-        z: implicit: where the next solve starts; warm: with the interior point, its primal-dual warm start.
-        good, has_good: implicit: the last ``(train, opt_state)`` whose plan converged, and whether there is one.
-        scale: the fraction of the optimiser's step the next update takes (1 unless backtracking cut it).
-    """
-
-    plan: Any = None
-    z: Any = None
-    warm: Any = None
-    good: Any = None
-    has_good: Any = None
-    scale: Any = None
+    plan: Any = None  # unrolled: the planner's warm state
+    z: Any = None  # implicit: where the next solve starts
+    warm: Any = None  # implicit with the interior point: its primal-dual warm start
+    good: Any = None  # implicit: the last (train, opt_state) whose plan converged
+    has_good: Any = None  # ... and whether there is one
+    scale: Any = None  # the fraction of the optimiser's step the next update takes (1 unless backtracking cut it)
 
 
 class Metrics(NamedTuple):
@@ -92,7 +84,7 @@ class Program:
     # ---- the learned leaves and the problem data -------------------------------------------------------------
 
     def data(self, train: Any, frozen: Any, consts: Any) -> ProblemData:
-        """``D(tr)``: the model NLP's data of the learned leaves ``train`` (see the module docstring)."""
+        """``D(tr)``: ``{"spec": p[cost <- tr.cost], "model": theta(tr.model)}`` and x0, the model NLP's data."""
         theta = self.model.combine(train["model"], frozen["model"])
         return ProblemData({"spec": {**consts["spec"], **train["cost"]}, "model": theta}, consts["x0"])
 

@@ -135,8 +135,7 @@ def _learnables(system: System, model: Any, config: E2EConfig, theta0: Any = Non
 
 
 class _Imitation:
-    """One run's state and iteration (the learner that :func:`~myriad.runtime.learn.loop.train` drives): the learned
-    leaves, the optimiser and planner states, the frozen part of theta, the history, counts and stored plans."""
+    """One run's state and iteration: the learner that :func:`~myriad.runtime.learn.loop.train` drives."""
 
     unit = "it"
 
@@ -149,8 +148,7 @@ class _Imitation:
 
     def restore(self) -> int:
         """Continue from the checkpoint; returns its iteration. The frozen part of theta (a Neural ODE's
-        normalisation, set by the fit's data with init="sysid") travels with the optimiser and planner states, so a
-        resume needs no refit."""
+        normalisation) travels with the optimiser and planner states, so a resume needs no refit."""
         path, eid, config_id, desc = self.checkpoint
         ck = load_checkpoint(path, {"theta": self.train, "opt_state": (self.opt_state, self.carry, self.frozen)},
                              dataset_id=eid, config_id=config_id, config=desc)
@@ -221,8 +219,7 @@ def run_e2e(system: System | str | os.PathLike, config: E2EConfig = E2EConfig(),
     learned = _learnables(system, model, config, theta0)  # checks theta0 before any work
     expert = _expert(system, transcription, expert)
     # Elastic final-state bounds (on request) for the plans solved to tolerance: the implicit solve and the judged
-    # plan. The fit and the unrolled planner keep the spec's bounds (its K steps never fail; measured on predator-prey
-    # it imitates 70x better on the hard rows, docs/notes/e2e-node.md).
+    # plan. The fit and the unrolled planner keep the spec's bounds (its K steps never fail; docs/notes/e2e-node.md).
     solved = transcription
     if config.soft_state_bounds is not None:
         rho = config.soft_state_bounds * max(1.0, abs(float(expert.cost)))
@@ -268,9 +265,8 @@ def _expert(system: System, transcription: Any, expert: Any) -> Solution:
 
 def _start(system: System, model: Any, config: E2EConfig, learned: tuple, theta0: Any, transcription: Any,
            progress: bool | None, resuming: bool) -> tuple[tuple, str | None, float]:
-    """Where theta starts: ``(learnables, the given start's identity or None, init seconds)``; a given ``theta0``
-    (init seconds -1: given, not fitted here), else a system-identification fit when ``config.init`` asks for one
-    (not on a resume, whose checkpoint holds the start), else ``learned`` (the guesses) as they are."""
+    """``(learnables, the given start's identity or None, init seconds)``: a given ``theta0`` (seconds -1), else a
+    fit when ``config.init`` asks for one (not on a resume: the checkpoint holds the start), else ``learned``."""
     if theta0 is not None:
         return learned, tree_id(theta0), -1.0
     if config.sysid_config() is None or resuming:

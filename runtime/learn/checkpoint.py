@@ -6,8 +6,7 @@ the leaves' key paths, shapes and dtypes, ``extra``). Its JSON copy beside it is
 inside the ``.npz`` is the authoritative one (the pair cannot be replaced in one atomic step).
 
 Restoring needs templates, the pytrees a fresh start would build: their structure is the one thing an ``.npz``
-cannot hold without pickling code. Floats round-trip bit for bit, so a resumed fit continues exactly where the
-interrupted one stopped.
+cannot hold without pickling code. Floats round-trip bit for bit: a resumed fit continues exactly where it stopped.
 """
 
 from __future__ import annotations
@@ -64,18 +63,9 @@ def save_checkpoint(path: str | os.PathLike, *, theta: Any, opt_state: Any, key:
                     best_val: float, history: list, dataset_id: str, config_id: str, config: dict | None = None,
                     extra: dict | None = None) -> Path:
     """Write a checkpoint to ``path`` (a ``.npz``, returned) and its JSON copy to ``path.with_suffix(".json")``,
-    atomically.
-
-    Args:
-        theta, opt_state, best_theta: pytrees; their array leaves are stored.
-        key: a ``jax.random`` key (raw ``uint32`` data, or a typed key: its data is stored).
-        epoch, best_val, history: completed epochs, the best validation loss so far (may be inf), and
-            ``[(epoch, train_loss, val_loss), ...]``.
-        dataset_id, config_id: identities checked on load (the data's, e.g. :func:`.dataset.dataset_id`, and
-            the run's, :mod:`.identity`).
-        config: a JSON-ready description of the configuration, to say *what* differs when ``config_id`` does.
-        extra: JSON-ready scalars the caller needs back (counters).
-    """
+    atomically: the array leaves of the pytrees, a ``jax.random`` key, the completed epochs, the best validation loss
+    (may be inf), the history ``[(epoch, train_loss, val_loss), ...]``, the data's and the run's identities checked on
+    load (``config``: the run's description, to say *what* differs) and ``extra`` scalars the caller needs back."""
     path = Path(path)
     if path.suffix != ".npz":
         raise ValueError(f"save_checkpoint: the path must end in .npz, got {str(path)!r}")

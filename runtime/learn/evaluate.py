@@ -1,7 +1,6 @@
 """Evaluate a learned model the way it is meant to be used: plan on it, then apply the plan to the true system (with
-the planning grid's own integrator, the published measure, and with the adaptive one). A plan that did not converge
-is reported as such, with the solver's reason, never as a success.
-"""
+the planning grid's own integrator, the published measure, and adaptively). A plan that did not converge is reported
+as such, with the solver's reason, never as a success."""
 
 from __future__ import annotations
 
@@ -89,8 +88,7 @@ def evaluate(model: AbstractModel, theta: Any, *, transcription=None, solver=Non
     Args:
         transcription, solver: the planning setting (default: the published one, single shooting with Heun on
             100 intervals and IPOPT), also the true optimum's unless ``optimum`` (or an expert) is given.
-        plan: a plan on the model already made in this setting (e.g. re-aimed, :mod:`.reaim`), to judge instead of
-            planning again.
+        plan: a plan on the model already made in this setting (e.g. re-aimed), judged instead of planning again.
         params: the learned system's parameters for planning (``{"spec": ..., "model": theta}``, e.g. with learned
             cost weights); None: the spec's and ``theta``.
         reaim: > 0: re-aim the converged plan at the required final values from that many observed runs of the true

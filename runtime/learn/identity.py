@@ -1,8 +1,8 @@
 """A run's identity: what fixes its sequence of iterates, as a JSON description and its SHA-256.
 
-A checkpoint stores both (:mod:`.checkpoint`); a resume recomputes them and refuses to continue another run, naming
-the fields that differ. The description must not depend on the process: a callable is known by its qualified name
-and never by a ``repr`` that carries a memory address, or every resume would look like another configuration.
+A checkpoint stores both; a resume recomputes them and refuses to continue another run, naming the fields that
+differ. The description must not depend on the process: a callable is known by its qualified name, never by a
+``repr`` that carries a memory address, or every resume would look like another configuration.
 """
 
 from __future__ import annotations

@@ -13,9 +13,7 @@ from typing import NamedTuple, Protocol
 
 from .progress import progress_meter
 
-__all__ = ["CHECKPOINT", "Learner", "Step", "Stop", "check_run", "checkpoint_path", "train"]
-
-CHECKPOINT = "checkpoint.npz"
+__all__ = ["Learner", "Step", "Stop", "check_run", "checkpoint_path", "train"]
 
 
 class Stop(enum.Enum):
@@ -83,4 +81,4 @@ def check_run(where: str, *, resume: bool, checkpoint_dir: str | os.PathLike | N
 
 def checkpoint_path(checkpoint_dir: str | os.PathLike | None) -> Path | None:
     """Where a learner keeps its checkpoint in ``checkpoint_dir`` (None: no checkpoints)."""
-    return None if checkpoint_dir is None else Path(checkpoint_dir) / CHECKPOINT
+    return None if checkpoint_dir is None else Path(checkpoint_dir) / "checkpoint.npz"

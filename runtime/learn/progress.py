@@ -88,14 +88,10 @@ def progress_meter(progress: bool | None, total: int, *, initial: int = 0, desc:
         return NoProgressMeter()
     if progress or sys.stderr.isatty():
         return TqdmProgressMeter(total, initial, desc, unit)
-    return LineProgressMeter(total, initial, desc, unit, _line_seconds())
-
-
-def _line_seconds() -> float:
-    text = os.environ.get("MYRIAD_PROGRESS_SECONDS", "")
+    text, seconds = os.environ.get("MYRIAD_PROGRESS_SECONDS", ""), LINE_SECONDS
     try:
-        return float(text) if text else LINE_SECONDS
+        seconds = float(text) if text else seconds
     except ValueError:  # a progress setting is not worth stopping a run for
-        print(f"myriad: warning: MYRIAD_PROGRESS_SECONDS={text!r} is not a number of seconds; using "
-              f"{LINE_SECONDS:g}", file=sys.stderr)
-        return LINE_SECONDS
+        print(f"myriad: warning: MYRIAD_PROGRESS_SECONDS={text!r} is not a number of seconds; using {seconds:g}",
+              file=sys.stderr)
+    return LineProgressMeter(total, initial, desc, unit, seconds)

@@ -5,17 +5,13 @@ For a model ``M`` of the true system ``S`` and parameters ``theta``, ``LearnedSy
     minimise   phi_S(x(T), T, p) + int_0^T L_S(x, u, t, p) dt
     subject to x' = M.vector_field(x, u, t, theta, p),  x(0) = x0_S,  S's bounds and required final values,
 
-with ``p`` the spec's parameters. Its parameter pytree is ``{"spec": p, "model": theta}``, so ``theta`` travels as
-data: two learned systems of the same model configuration are equal and hash alike whatever their ``theta``, so a new
-``theta`` reuses every compiled NLP (``transcribe`` is cached by the system).
-
-Costs are the true system's at ``params["spec"]``. A ``spec_form`` model's (:class:`Parametric`) Jacobians, costates
-and u* are the true system's at its ``spec_form_params``, so the sweep works; any other model's come by autodiff of
-H = L + lambda . f, and its u* is not characterised (``optimal_control_kind = "none"``).
+with ``p`` the spec's parameters. Its parameters are ``{"spec": p, "model": theta}``: ``theta`` travels as data, so
+two learned systems of one model configuration are equal whatever their ``theta``, and a new ``theta`` reuses every
+compiled NLP. A ``spec_form`` model's Jacobians, costates and u* are the true system's at its ``spec_form_params``;
+any other model's come by autodiff of H = L + lambda . f, and its u* is not characterised.
 
 Re-aiming (``aim``): the planner steers the *model* to ``x_final - aim``, so that a plan whose model misses the true
-final state by ``aim`` lands on it in the true system (:mod:`..reaim`). Final values are constants of the compiled
-NLP, so ``aim`` is part of the system's identity (a new aim compiles a new NLP).
+final state by ``aim`` lands on it in the true system (:mod:`..reaim`); a new aim compiles a new NLP.
 """
 
 from __future__ import annotations
@@ -93,10 +89,6 @@ class LearnedSystem(System):
         """``{"spec": the true system's parameters, "model": theta}``, every leaf as ``dtype`` (when given)."""
         theta = self.theta if dtype is None else jax.tree.map(lambda a: jnp.asarray(a, dtype=dtype), self.theta)
         return {"spec": self.true_system.default_params(dtype), "model": theta}
-
-    def guess_params(self, dtype: Any = None) -> dict:
-        """Same as :meth:`default_params`: a learned system's model parameters are its ``theta``."""
-        return self.default_params(dtype)
 
     def _spec_form(self, params: dict) -> dict:
         return self.model.spec_form_params(params["model"], params["spec"])
