@@ -1,5 +1,6 @@
-"""The Gymnasium adapter: every shipped system and a spec that does not ship pass Gymnasium's own checker with
-warnings as errors; ids, spaces, the action-bound refusal, rendering, and the vector env against the core."""
+"""The Gymnasium adapter: every shipped id, Simple Case with its default action bound and specs that do not ship
+(registered by rl.make: a spec, gymnasium.make and make_vec) pass Gymnasium's checks with warnings as errors; ids,
+spaces, the action-bound refusal, rendering, and the vector env against the core."""
 
 import gymnasium
 import jax
@@ -71,6 +72,10 @@ def test_any_spec_is_registered_by_make_so_gymnasium_builds_it(tmp_path):
         _, r, done, *_ = single.step(np.float32([a]))
         np.testing.assert_allclose(reward, [r, r], rtol=1e-12)
     assert done and terminated.all()
+    # The content names the id: an edited spec is a new one, and its system object maps to it too.
+    copy.write_text(copy.read_text().replace("C: {value: 4", "C: {value: 3"))
+    edited = rl.register(copy)
+    assert edited != ident and edited.startswith("myriad-spec/SimpleCase-") and rl.register(load(copy)) == edited
     # A peer problem by name, with options.
     peer = rl.make("peers/catalyst_mixing", steps=10)
     assert peer.spec.id.startswith("myriad-spec/CatalystMixing-")
