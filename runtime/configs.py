@@ -24,6 +24,7 @@ import dataclasses
 import enum
 import inspect
 import json
+import numbers
 import re
 import types
 import typing
@@ -196,13 +197,30 @@ def build(cls: type, values: Mapping[str, Any], base: Any = None) -> Any:
         raise ValueError(f"{cls.__name__}: {exc}") from None
 
 
+# A scalar annotation: what its values may be, and its words in a message.
+_SCALARS = {bool: (bool, "true or false"), int: (numbers.Integral, "an integer"), float: (numbers.Real, "a number"),
+            str: (str, "a word")}
+
+
 def _check_kind(name: str, hint: Any, value: Any) -> None:
-    """A field annotated with config classes alone takes one of them (or None where allowed): a stray word or broken
-    JSON is refused here, naming the field, rather than failing later inside the work."""
+    """A value of the annotated kind (a scalar, a list of scalars, one of the config classes, or None where allowed);
+    anything else (a stray word, broken JSON) is refused here, naming the field, rather than failing later inside
+    the config's own checks or the work."""
     bare, optional = _options(hint)
-    declared = typing.get_args(bare) if typing.get_origin(bare) in (typing.Union, types.UnionType) else (bare,)
-    if (value is None and optional) or not all(isinstance(c, type) and c.__module__ not in ("builtins", "typing")
-                                               for c in declared) \
+    args = typing.get_args(bare)
+    fits = lambda kind, v: isinstance(v, _SCALARS[kind][0]) and (kind is bool or not isinstance(v, bool))  # noqa: E731
+    if value is None and optional:
+        return
+    if bare in _SCALARS:
+        if not fits(bare, value):
+            raise FieldError(f"{name} expects {_SCALARS[bare][1]}, got {value!r}", name)
+        return
+    if typing.get_origin(bare) is tuple and args[1:] == (Ellipsis,) and args[0] in _SCALARS:
+        if not (isinstance(value, tuple) and all(fits(args[0], v) for v in value)):
+            raise FieldError(f"{name} expects a list, each {_SCALARS[args[0]][1]}, got {value!r}", name)
+        return
+    declared = args if typing.get_origin(bare) in (typing.Union, types.UnionType) else (bare,)
+    if not all(isinstance(c, type) and c.__module__ not in ("builtins", "typing") for c in declared) \
             or isinstance(value, declared):
         return
     words = [w for k in _dataclasses_of(hint) if (w := _word(k))]

@@ -43,7 +43,7 @@ _HUGE = str(10**12)
 # (command, flag, value) that another package's checks do not yet refuse as this file asks (reported to its owner,
 # 2026-12-05); remove an entry once fixed (an unexpected pass says so).
 _E2E_GUESS = "E2EConfig.__post_init__ reads cost_guess with dict(): Python's own error, not naming --cost-guess"
-_KNOWN: dict[tuple[str, str, str], str] = {
+_KNOWN: dict[tuple[str, ...], str] = {
     **{("sweep", "--method", v): "sweep's message does not name --method" for v in ("no_such_name", "", "MISSING")},
     ("sweep", "--seeds", "-1"): "sweep's message says 'seeds', not --seeds",
     **{("e2e", "--cost-guess", v): _E2E_GUESS for v in ("{", "[1,", "null", "-1", "NaN")},
@@ -51,6 +51,10 @@ _KNOWN: dict[tuple[str, str, str], str] = {
     **{("e2e", "--unroll", v): "the adjoint's message names Unrolled(steps=...), not --unroll" for v in ("-1", "0")},
     **{("e2e", "--expert", v): "the dataset loader's message does not name --expert" for v in ("MISSING/x", "")},
     ("e2e", "--expert-index", "-1"): "a negative index is accepted (unused without --expert)",
+    # (command, field) for --set FIELD={ (test_every_field_set_to_broken_json_is_refused_naming_it)
+    ("sysid", "activation"): "SysidConfig does not check activation (its flag's choices do)",
+    ("e2e", "activation"): "E2EConfig does not check activation (its flag's choices do)",
+    ("e2e", "cost_guess"): _E2E_GUESS,
 }
 
 
@@ -164,3 +168,21 @@ def test_a_switch_given_a_value_is_refused(run, command):
 def test_an_unknown_system_is_refused_naming_it(run, command, value):
     code, err = run([command, value])
     _check(code, err, [repr(value), value] if value else ["''", "empty"], strict=True)
+
+
+@pytest.mark.parametrize("command", [c for c, p in _commands().items() if "--set" in p._option_string_actions])
+def test_every_field_set_to_broken_json_is_refused_naming_it(run, command):
+    """``--set FIELD={`` for every field of the command's config, the fields read from its own refusal of an unknown
+    one (so a new field is covered without editing this file)."""
+    head = [command, *_positionals(_commands()[command])]
+    _, err = run([*head, "--set", "no_such_field=1"])
+    fields = err.rsplit("known: ", 1)[1].strip().split(", ")
+    assert len(fields) > 3, err
+    failures = []
+    for field in fields:
+        code, err = run([*head, "--set", f"{field}={{"])
+        flags = [o for a in _commands()[command]._actions if a.dest == field for o in a.option_strings]
+        named = any(n in err for n in (field, "--set", "--" + field.replace("_", "-"), *flags))
+        if (code != 2 or "internal error" in err or "Traceback" in err or not named) and (command, field) not in _KNOWN:
+            failures.append(f"{field}: exit {code}, {err.strip()!r}")
+    assert not failures, "\n".join(failures)
