@@ -57,16 +57,9 @@ class BenchRow:
     failures: list[str] = dataclasses.field(default_factory=list)  # methods that raised, and why
 
     def records(self) -> list[dict]:
-        out = []
-        for sol in [self.main, *self.alternatives]:
-            rec = sol.record()
-            rec.update(published=self.published, target=self.target)
-            if sol is self.main:
-                rec.update(setting="published", meets_target=self.meets)
-            else:
-                rec.update(setting="alternative", best=sol is self.best)
-            out.append(rec)
-        return out
+        ref = {"published": self.published, "target": self.target}
+        return [{**self.main.record(), **ref, "setting": "published", "meets_target": self.meets},
+                *({**s.record(), **ref, "setting": "alternative", "best": s is self.best} for s in self.alternatives)]
 
 
 # A re-simulated solution that misses a required final value by more than this is not a candidate for "best": a
