@@ -35,7 +35,8 @@ coarser grid's cost error, so the finer grid's is below it (by 2^p asymptoticall
 
 Stopping: all three meet the tolerance (``met``); or a limit is reached, which is reported and never called a
 success: ``max_refinements`` levels after the first solve, a next grid above ``max_intervals``, an NLP that did not
-converge, an estimate that is not a number. The last solution is returned either way, with ``refinement`` =
+converge, an estimate that is not a number. The last solution is returned either way (where a refined grid's NLP
+did not converge, the last grid's that did), with ``refinement`` =
 ``{"met", "tolerance", "reason", "history"}`` (see :class:`~myriad.runtime.solution.Solution`; each level of the
 history has its ``error``, re-simulation ``gap`` and cost ``change``, NaN where not measured).
 
@@ -155,7 +156,7 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
         ``refinement`` filled in.
     """
     tr, history, tol = transcription, [], config.tolerance
-    parent_errors = pieces = coarse_cost = None
+    parent_errors = pieces = coarse_cost = last = None
     S = transcription.steps_per_mesh_interval
     for level in range(config.max_refinements + 1):
         start = time.perf_counter()
@@ -171,6 +172,9 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
         met = False
         if not sol.converged:
             reason = f"the NLP did not converge on the grid of {N} intervals ({sol.status}: {sol.message})"
+            if last is not None:  # a finer grid that failed from its warm start: the coarser answer is worth more
+                reason += f"; the last converged grid, {last.intervals} intervals, is returned"
+                sol = last
         elif math.isnan(error):
             reason = f"the error estimate is not a number on the grid of {N} intervals (a non-finite trajectory)"
         elif sol.agreement and change <= tol:
@@ -180,6 +184,7 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
         elif level == config.max_refinements:
             reason = f"max_refinements = {config.max_refinements} reached" + _shortfall(sol, change)
         else:
+            last = sol
             mesh_errors = np.asarray(sol.interval_errors).reshape(-1, S).max(axis=1)
             counts = _next_counts(sol, mesh_errors, tol, tr.order, config.max_split, parent_errors, pieces)
             positions = refine_positions(tr.positions()[::S], counts, S)

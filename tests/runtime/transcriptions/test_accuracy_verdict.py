@@ -187,3 +187,23 @@ def test_refinement_bounds_the_cost_not_only_the_local_errors():
     assert history[-1]["change"] <= 1e-4 < history[-2]["change"]
     assert history[-1]["intervals"] == 2 * history[-2]["intervals"]
 
+
+
+def test_a_refined_grid_that_fails_returns_the_last_converged_one(monkeypatch):
+    # Goddard's rocket refined to 1e-6: 400 intervals converge at -1.0128351 (5e-6 from the published optimum), the
+    # halved 800 stop at IPOPT's iteration limit at -1.0111046 (1.7e-3 off). The 400-interval answer is returned,
+    # reported as not met. Here the NLP is made to fail on every refined grid of Decay.
+    real = Trapezoidal.solve_problem
+
+    def failing(self, system, solver, data, z0=None):
+        sol = real(self, system, solver, data, z0)
+        if self.grid is None:
+            return sol
+        return dataclasses.replace(sol, converged=False, status=Status.ITERATION_LIMIT, message="forced", cost=99.0)
+
+    monkeypatch.setattr(Trapezoidal, "solve_problem", failing)
+    sol = solve(Decay(), Trapezoidal(intervals=4), tolerance=1e-9, resimulate=False)
+    r = sol.refinement
+    assert not r["met"] and not sol.accurate and sol.converged
+    assert "did not converge on the grid of" in r["reason"] and "the last converged grid, 4 intervals" in r["reason"]
+    assert sol.intervals == 4 and sol.cost != 99.0 and [h["converged"] for h in r["history"]] == [True, False]

@@ -243,10 +243,11 @@ def test_without_refinement_the_cli_warns(hyper, capsys, tmp_path):
     argv = ["solve", str(SPECS / "hypersensitive.yaml"), "--transcription", "hermite_simpson", "--intervals", "50"]
     assert main(argv + ["--json", str(out)]) == 0  # the NLP converged: exit 0, but the accuracy is flagged
     err = capsys.readouterr().err
-    assert "myriad: warning: error estimate" in err and "exceeds the tolerance 1e-06" in err
+    assert "myriad: warning: the discretised and re-simulated answers disagree" in err
     rec = json.loads(out.read_text())
     assert rec["intervals"] == 50 and rec["refinement"] is None
     assert abs(rec["simulated_defect"][0]) > 1e-3  # the re-simulated final value misses x(T) = 1.5
+    assert rec["agreement"] is False and rec["agreement_gap"] > rec["agreement_tolerance"] == 1e-3
 
 
 @pytest.mark.slow
