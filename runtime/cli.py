@@ -247,14 +247,12 @@ def _cmd_bench(args) -> int:
 
     names = args.systems or list(NAMES)
     unknown = [n for n in names if n not in NAMES]
-    if unknown:
-        return _usage(f"--systems: unknown systems {unknown}; shipped: {', '.join(NAMES)}")
-    error = _first_error(output_file_error(args.json, "--json"), output_file_error(args.markdown, "--markdown"),
-                         output_folder_error(args.plots, "--plots"))
+    error = _first_error(f"--systems: unknown systems {unknown}; shipped: {', '.join(NAMES)}" if unknown else None,
+                         output_file_error(args.json, "--json"), output_file_error(args.markdown, "--markdown"),
+                         output_folder_error(args.plots, "--plots"),
+                         "--jobs must be at least 1" if args.jobs is not None and args.jobs < 1 else None)
     if error:
         return _usage(error)
-    if args.jobs is not None and args.jobs < 1:
-        return _usage("--jobs must be at least 1")
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
