@@ -1,17 +1,11 @@
-"""Fit a model's parameters to trajectories: the loss of :mod:`.losses`, minimised by an optax optimiser.
+"""Fit a model's parameters to trajectories: the loss of :mod:`.losses`, minimised by an optax optimiser in the
+learning kit's loop (the README's "Fitting": the stops, checkpoints and what a resume may change).
 
-An epoch visits the training trajectories once, in minibatches of a fixed shape (a permutation drawn from
-``FitConfig.seed``, padded with repeats of weight 0), as one compiled ``lax.scan`` that every epoch of a curriculum
-stage reuses; only the trainable part of theta (``model.partition``) gets gradients. Every ``validate_every`` epochs
-the full-horizon, single-shooting validation loss (gamma = 1, whatever the training layout, so it compares across
-stages) selects the parameters returned. Stops (:class:`~myriad.runtime.learn.loop.Stop`): ``CONVERGED`` (validation
-loss <= ``tol``), ``EARLY_STOPPING`` (``patience`` validations without improvement in the last stage),
-``MAX_EPOCHS``, ``NON_FINITE`` (never a success: the best parameters are kept and the reason reported).
-
-Checkpoints (the kit's) are written every ``checkpoint_every`` epochs and at the stop, never of a non-finite state;
-``resume=True`` continues from the last one of the same dataset and configuration (``epochs``, ``patience``, ``tol``
-and ``checkpoint_every`` may change), bit for bit the uninterrupted run on CPU with the same seed (a shorter run's
-closing validation, off schedule, comes after its last checkpoint, so a resume never replays it).
+An epoch is one compiled ``lax.scan`` over minibatches of a fixed shape (a permutation from ``FitConfig.seed``, padded
+with repeats of weight 0), reused by every epoch of a curriculum stage; only the trainable part of theta gets
+gradients. The validation loss (full horizon, single shooting, gamma = 1, whatever the training layout, so it
+compares across stages) selects the parameters returned. A resumed fit is bit for bit the uninterrupted one on CPU
+(a shorter run's closing validation, off schedule, comes after its last checkpoint, so a resume never replays it).
 """
 
 from __future__ import annotations

@@ -90,15 +90,6 @@ class LeastSquaresResult:
     method: str = "single_shooting"
     starts: np.ndarray | None = None
 
-    def record(self) -> dict[str, Any]:
-        """A JSON-ready summary (NaN and inf as None), without the covariance and the starts."""
-        num = lambda v: float(v) if math.isfinite(float(v)) else None  # noqa: E731
-        out = {k: getattr(self, k) for k in ("n_obs", "dof", "converged", "message", "steps", "seconds", "method")}
-        return {**out, "theta": {k: num(v) for k, v in self.theta.items()}, "residual_norm": num(self.residual_norm),
-                "standard_errors": {k: num(v) for k, v in self.standard_errors.items()}, "sigma2": num(self.sigma2),
-                "status": str(self.status), "unidentifiable": list(self.unidentifiable),
-                "singular_values": [num(x) for x in self.singular_values]}
-
 
 def _predict(model, integrator, window, theta, spec, times, starts, x_obs, u_obs):
     """x~ at nodes 0..N, (B, N + 1, n): from ``starts`` (single shooting) or in windows from the observations."""

@@ -88,25 +88,21 @@ class PolishResult:
                 "seconds": round(self.seconds, 3), "status": str(self.status)}
 
 
-def _losses(model, integrator, n_steps, window, train, frozen, spec, inv, t0, h, x, u, xa, ua, xv, uv, weight):
-    theta = model.combine(train, frozen)
-    full = layout(n_steps)
-
-    def mean(lay, xs, us):
-        return jnp.mean(window_losses(model, integrator, lay, theta, spec, t0, h, us, xs, inv))
-
-    anchor = mean(full, xa, ua) if xa.shape[0] else jnp.zeros(())
-    return mean(layout(n_steps, window), x, u) + weight * anchor, mean(full, xv, uv), anchor
-
-
 @functools.partial(jax.jit, static_argnames=("model", "integrator", "n_steps", "window", "iterations"))
 def _run(train, frozen, spec, inv, t0, h, x, u, xa, ua, xv, uv, weight, gtol, *, model, integrator, n_steps, window,
          iterations):
     TRACES["polish"] += 1
-    args = (spec, inv, t0, h, x, u, xa, ua, xv, uv, weight)
+    full = layout(n_steps)
 
     def losses(tr):
-        return _losses(model, integrator, n_steps, window, tr, frozen, *args)
+        """The objective, the validation loss and the anchors' loss."""
+        theta = model.combine(tr, frozen)
+
+        def mean(lay, xs, us):
+            return jnp.mean(window_losses(model, integrator, lay, theta, spec, t0, h, us, xs, inv))
+
+        anchor = mean(full, xa, ua) if xa.shape[0] else jnp.zeros(())
+        return mean(layout(n_steps, window), x, u) + weight * anchor, mean(full, xv, uv), anchor
 
     def objective(tr):
         return losses(tr)[0]
