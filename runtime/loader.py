@@ -102,11 +102,9 @@ def _resolve_name(text: str) -> str:
     names = _names()
     if text in names:
         return names[text]
-    folded = {}
-    for n in names:
-        folded.setdefault(n.lower(), set()).add(names[n])
-    if len(folded.get(text.lower(), ())) == 1:
-        return next(iter(folded[text.lower()]))
+    folded = {names[n] for n in names if n.lower() == text.lower()}
+    if len(folded) == 1:
+        return folded.pop()
     is_path = text.endswith((".yaml", ".yml")) or os.sep in text or bool(os.altsep and os.altsep in text)
     if text.startswith(PEER_PREFIX) and not text.endswith((".yaml", ".yml")):
         name, peers = text[len(PEER_PREFIX):], [n[len(PEER_PREFIX):] for n in names if n.startswith(PEER_PREFIX)]
