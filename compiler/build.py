@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import checks, parse, render, symbolic
 from . import lower as lower_mod
-from .errors import CodegenError, ErrorLog, Location, SpecError, SpecErrors
+from .errors import CodegenError, ErrorLog, Location, SpecError, flatten
 from .schema import CodegenData, SymbolicProblem
 
 __all__ = ["DEFAULT_OUT", "BuildResult", "Compiled", "build", "compile_file", "compile_spec", "spec_files"]
@@ -200,10 +200,10 @@ def build(paths, out_dir: str | os.PathLike | None = None, check: bool = False) 
     for path in spec_files(paths):
         try:
             c = compile_file(path)
-        except SpecErrors as exc:
-            result.errors.extend(exc.errors)
+        except SpecError as exc:  # one, or several (SpecErrors)
+            result.errors.extend(flatten(exc))
             continue
-        except (SpecError, CodegenError) as exc:
+        except CodegenError as exc:
             result.errors.append(exc)
             continue
         if c.name in names:

@@ -24,7 +24,7 @@ from .build import BuildResult, _display, _read, _symbolic, spec_files, write_ou
 # The text helpers live in .card_text (md, code, num and symbol_tex are re-exported for existing importers).
 from .card_schema2 import fingerprint_parts, horizon_cell, horizon_sentence, path_lines, path_table
 from .card_text import _comment, _e, _g, _math, _short_floats, _table, _url, _value, code, md, num, symbol_tex
-from .errors import SpecError, SpecErrors
+from .errors import SpecError, flatten
 from .optimal_control import derive
 from .render import _env
 from .schema import SymbolicProblem
@@ -266,10 +266,8 @@ def build_cards(paths, out_dir: str | os.PathLike, check: bool = False, results_
     for path in spec_files(paths):
         try:
             syms.append((path, _symbolic(_read(path, _display(path)), _display(path))))
-        except SpecErrors as exc:
-            result.errors.extend(exc.errors)
-        except SpecError as exc:
-            result.errors.append(exc)
+        except SpecError as exc:  # one, or several (SpecErrors)
+            result.errors.extend(flatten(exc))
     if result.errors:
         return result
 
