@@ -1,7 +1,7 @@
 """``myriad sysid``: learn a system's dynamics from sampled trajectories, plan on the model, judge the plan.
 
-Arguments are checked before any work; the JSON record and the plots are written atomically; exit 1 when the fit or
-the planning failed (with the reason on stderr).
+Arguments are checked before any work (exit 2); the JSON record and the plots are written atomically; exit 1 when
+the experiment failed its verdict (:func:`.run.failed`; the reason on stderr and in the record's ``failure``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,10 @@ def add_parser(sub) -> None:
     from ..learn.models import ACTIVATIONS
     from .run import SysidConfig
 
-    s = sub.add_parser("sysid", help="system identification: fit a model to trajectories, plan on it")
+    s = sub.add_parser("sysid", help="system identification: fit a model to trajectories, plan on it",
+                       epilog="exit 0: passed; 1: the fit or the plan failed, a parameter is off by more than "
+                              "--max-param-error and 3 standard errors, or the plan's gap exceeds --max-gap (the "
+                              "reason on stderr and in the record's failure); 2: a usage error, before any work")
     s.add_argument("system", metavar="NAME|PATH")
     # The flags are SysidConfig's fields (--fit, --refit, --sampling take JSON; --set reaches a nested field).
     add_arguments(s, SysidConfig, skip=("polish",), metavars=_METAVARS,
