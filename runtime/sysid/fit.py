@@ -314,15 +314,10 @@ class _FitRun:
 def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, theta0: Any = None,
         checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool | None = None) -> FitResult:
     """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (the training set where that is empty),
-    from ``theta0`` (default: ``model.init_params`` with a key from ``config.seed``); see the module docstring.
-    The model is rolled out on the data's grid by :func:`.losses.fit_integrator`. ``checkpoint_dir``: a folder for
+    from ``theta0`` (default: ``model.init_params`` with a key from ``config.seed``); ``checkpoint_dir``: a folder for
     ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; ``progress``: a tqdm bar on stderr (None: when
-    stderr is a terminal).
-
-    Raises:
-        TypeError, ValueError: bad arguments, a dataset of another system or spec, a window longer than the grid
-            (all before any work); ``CheckpointMismatch`` when resuming from another dataset or configuration.
-    """
+    stderr is a terminal). TypeError or ValueError for a bad argument (all before any work); ``CheckpointMismatch``
+    when resuming from another dataset or configuration."""
     start, traces = time.perf_counter(), sum(TRACES.values())
     n_steps, stages = _check(model, dataset, config, theta0, checkpoint_dir, resume, progress)
     run = _FitRun(model, dataset, config, theta0, n_steps, stages)

@@ -109,11 +109,8 @@ def layout(n_steps: int, window: int | None = None, *, tile: bool = True, gamma:
 
 def window_losses(model: Any, integrator: AbstractIntegrator, lay: WindowLayout, theta: Any, spec_params: Any,
                   t0: Any, h: Any, controls: Any, states: Any, inv_scale: Any) -> jax.Array:
-    """Per-trajectory losses (B,): sum_{s,l} c gamma^l ||(x~ - x) / s||^2 / (K n), see the module docstring.
-
-    ``controls`` (B, N+1, m) and ``states`` (B, N+1, n) are the observations; ``inv_scale`` is 1 / s, shape (n,).
-    Traceable: use inside ``jit``/``grad``; ``lay`` is static (host arrays).
-    """
+    """Per-trajectory losses (B,) of the module docstring on observed ``controls`` (B, N+1, m) and ``states`` (B, N+1,
+    n), with ``inv_scale`` = 1 / s (n,); traceable (``lay`` holds host arrays)."""
 
     def f(x, u, t):
         return model.vector_field(x, u, t, theta, spec_params)

@@ -41,8 +41,7 @@ class PolishConfig:
     Attributes:
         iterations: the most L-BFGS iterations.
         window: multiple-shooting window on the dataset (1..N); None: single shooting over the whole horizon.
-        anchor_weight: weight of the anchors' full-horizon loss (0: anchors ignored); 10 measured better than 1 on
-            the 2-4-state systems with required final values (docs/notes/node-training.md).
+        anchor_weight: weight of the anchors' full-horizon loss (0: anchors ignored; docs/notes/node-training.md).
         scale: the loss's state scale, ``"range"``, ``"data"`` or ``"none"`` (see :mod:`.losses`).
         gtol: stop when the gradient norm falls below this (0: run all iterations).
     """
