@@ -228,7 +228,9 @@ def test_refinement_reaches_the_published_hypersensitive_optimum(hyper):
     assert abs(first["cost"] - J_PUBLISHED) > 0.1 * J_PUBLISHED
     # ... and refinement grades the grid: steps of well under 1 in the layers, the coarse ones kept in between.
     intervals = [h["intervals"] for h in r["history"]]
-    assert intervals == sorted(intervals) and sol.intervals == intervals[-1] < 1000
+    # The last grid halves every interval of the one before, whose cost it confirms (the cost's change on halving
+    # met the tolerance too; refine.py): 844 -> 1688 intervals, within the default max_intervals = 2000.
+    assert intervals == sorted(intervals) and sol.intervals == intervals[-1] == 2 * intervals[-2] <= 2000
     h = np.diff(sol.times[::2])
     assert h[0] < 1.0 and h[-1] < 1.0 and h.max() > 100 * max(h[0], h[-1])
     record = json.loads(json.dumps(sol.record()))
