@@ -1,7 +1,6 @@
 """End-to-end learning through the planner (Algorithm 2 of the published paper): a model inside the transcribed NLP,
 differentiated through K unrolled extragradient steps or by the implicit function theorem at a converged plan
-(README.md in this folder: its use and contracts).
-"""
+(README.md in this folder: its use and contracts)."""
 
 from ..solvers.adjoint import Implicit as Implicit
 from ..solvers.adjoint import Unrolled as Unrolled

@@ -33,9 +33,10 @@ class E2EConfig:
     Attributes:
         model: ``"parametric"`` (the spec's learnable parameters, from their guesses) or ``"node"`` (a Neural ODE).
         adjoint: how the plan is differentiated: ``Unrolled(K)``, reverse mode through K warm-started extragradient
-            steps, or ``Implicit()``, the implicit function theorem at a converged solve (``Implicit(fallback_steps=
-            K)``: K of the unrolled fallback); K = None is 10 for a parametric model, 5 for a Neural ODE, as
-            published. A name (``"unrolled"``, ``"implicit"``) is read as that adjoint with the default K.
+            steps, or ``Implicit()``, the implicit function theorem at a converged solve
+            (``Implicit(fallback_steps=K)``: K of the unrolled fallback); K = None is 10 for a parametric model, 5 for
+            a Neural ODE, as published. A name (``"unrolled"``, ``"implicit"``) is read as that adjoint with the
+            default K.
         iterations: the most outer iterations (one optimiser update each); None: 1200 for a parametric model, 600
             for a Neural ODE.
         optimizer: a learning rate for ``optax.adam`` or an ``optax.GradientTransformation`` (theta and cost weights).

@@ -286,7 +286,6 @@ def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true
     """Judge the learned model on the true system (:func:`~myriad.runtime.learn.evaluate.evaluate`: plan on it
     with IPOPT, apply the plan, compare with the expert) and write the report."""
     counts, train, frozen, consts = run.counts, run.train, run.frozen, run.consts
-
     unsolved = counts["skipped"] + counts["fallback_unrolled"] + counts["backtracked"]
     if unsolved:
         message = (message + "; " if message else "") + (

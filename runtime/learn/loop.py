@@ -1,8 +1,7 @@
 """The one training loop of every learner: steps, the non-finite stop, checkpoints on a schedule, a progress meter,
 and why it ended as a :class:`Stop` (the contract: README.md in this folder, "The loop").
 
-    stop, message = train(learner, start=epoch, end=epochs, every=10, progress=None, exhausted=Stop.MAX_EPOCHS)
-"""
+    stop, message = train(learner, start=epoch, end=epochs, every=10, progress=None, exhausted=Stop.MAX_EPOCHS)"""
 
 from __future__ import annotations
 
