@@ -1,11 +1,6 @@
-"""Compilation infrastructure: what every solver, transcription and simulation compiles through, naming none of them.
-
-* :mod:`.compiled`: :class:`CompiledFunction` (``jax.jit`` compiled ahead of time, once per argument signature),
-  :func:`compile_many` (several at once, XLA in parallel threads) and :func:`program_key`;
-* :mod:`.programs`: the traced programs kept on disk (``jax.export``), so a second process skips tracing; types
-  that cross a stored program's boundary register themselves with :func:`programs.register_namedtuple`;
-* :mod:`.jax_cache`: JAX's persistent compilation cache in a user folder (``$MYRIAD_JAX_CACHE``), which also
-  decides where the program store lives.
+"""Compilation infrastructure: what every solver, transcription and simulation compiles through, naming none of them:
+functions compiled ahead of time (:mod:`.compiled`), the traced programs kept on disk (:mod:`.programs`) and JAX's
+persistent compilation cache, which decides where they live (:mod:`.jax_cache`).
 
 Layering: this package imports only JAX, NumPy and :mod:`myriad.runtime.atomic`; solvers, transcriptions and core
 types import it, never the reverse (``tests/runtime/test_layering.py``).

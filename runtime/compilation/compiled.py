@@ -1,10 +1,5 @@
-"""Functions compiled ahead of time, once per argument signature, and compiled together.
-
-:class:`CompiledFunction` is what every solver, transcription and :func:`~myriad.runtime.simulate.simulate` compiles
-through: a second call with new arguments of the same shapes never traces or compiles again, and compile time is
-measured apart from run time. With a key (:func:`program_key`) its traced program may be kept on disk for later
-processes (:mod:`.programs`).
-"""
+"""Functions compiled ahead of time, once per argument signature, and compiled together (with a key,
+:func:`program_key`, a traced program may be kept on disk for later processes: :mod:`.programs`)."""
 
 from __future__ import annotations
 
@@ -14,16 +9,10 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Hashable
 
 import jax
-import numpy as np
 
 from . import programs
 
 __all__ = ["CompiledFunction", "compile_many", "program_key"]
-
-
-def _signature(args: tuple) -> Hashable:
-    leaves, treedef = jax.tree.flatten(args)
-    return treedef, tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
 
 
 def program_key(*parts: str | None) -> str | None:
@@ -32,11 +21,9 @@ def program_key(*parts: str | None) -> str | None:
 
 
 class CompiledFunction:
-    """``jax.jit(fn)`` compiled ahead of time (``.lower(...).compile()``) once per argument signature.
-
-    Calling an AOT-compiled executable can never retrace, so the compile cost is paid, and measured, exactly once
-    per signature, and calls with arguments of another shape fail loudly instead of recompiling silently.
-    """
+    """``jax.jit(fn)`` compiled ahead of time once per argument signature: an AOT-compiled executable never
+    retraces, so the compile cost is paid, and measured, once per signature, and arguments of another shape fail
+    loudly instead of recompiling silently."""
 
     def __init__(self, fn: Callable, key: str | None = None, **jit_kwargs: Any):
         self._jitted = jax.jit(fn, **jit_kwargs)
@@ -50,7 +37,7 @@ class CompiledFunction:
 
     def compile(self, *args: Any) -> float:
         """Compile for the signature of ``args`` unless already done; returns the seconds spent (0 if cached)."""
-        key = _signature(args)
+        key = programs.signature(args)
         if key in self._executables:
             return 0.0
         start = time.perf_counter()
@@ -58,14 +45,14 @@ class CompiledFunction:
         return time.perf_counter() - start
 
     def __call__(self, *args: Any) -> Any:
-        return self._executables[_signature(args)](*args)
+        return self._executables[programs.signature(args)](*args)
 
     def is_compiled(self, *args: Any) -> bool:
-        return _signature(args) in self._executables
+        return programs.signature(args) in self._executables
 
     def executable(self, *args: Any) -> Callable:
         """The compiled executable for the signature of ``args`` (compile first): skips the lookup per call."""
-        return self._executables[_signature(args)]
+        return self._executables[programs.signature(args)]
 
 
 def compile_many(jobs: list[tuple[CompiledFunction, tuple]]) -> float:
@@ -79,7 +66,7 @@ def compile_many(jobs: list[tuple[CompiledFunction, tuple]]) -> float:
     if not pending:
         return 0.0
     start = time.perf_counter()
-    lowered = [(cf, _signature(args), cf.lower(*args)) for cf, args in pending]
+    lowered = [(cf, programs.signature(args), cf.lower(*args)) for cf, args in pending]
     workers = max(1, min(len(lowered), os.cpu_count() or 1))
     options = programs.compiler_options()
     if workers == 1:

@@ -39,12 +39,8 @@ def enable_compilation_cache(requested: str | None = None) -> str | None:
     a solve's many small programs (objective, derivatives, re-simulation) are cached too: on a second run they are
     what remains once the large ones are read back.
 
-    Args:
-        requested: a folder (``~`` expanded), or an off word (see the module docstring); None: the environment's
-            choice or the default.
-
-    Returns:
-        The folder in use, or None when the cache is off.
+    ``requested``: a folder (``~`` expanded), an off word (see the module docstring), or None (the environment's
+    choice or the default). Returns the folder in use, or None when the cache is off.
     """
     import jax
 

@@ -34,7 +34,7 @@ import numpy as np
 from ..atomic import atomic_write_bytes
 
 __all__ = ["QUICK", "compiler_options", "describe", "lower", "program_folder", "register_namedtuple",
-           "set_compiler_options", "set_program_folder", "system_key"]
+           "set_compiler_options", "set_program_folder", "signature", "system_key"]
 
 log = logging.getLogger(__name__)
 _FOLDER: Path | None = None
@@ -135,10 +135,10 @@ def _module_key(module: str) -> str | None:
     return f"system:{hashlib.sha256(Path(path).read_bytes()).hexdigest()}"
 
 
-def _signature_text(args: tuple) -> str:
+def signature(args: tuple) -> tuple:
+    """The arguments' tree structure and each leaf's shape and dtype: what one compiled executable serves."""
     leaves, treedef = jax.tree.flatten(args)
-    shapes = ";".join(f"{np.shape(x)}:{x.dtype if hasattr(x, 'dtype') else np.result_type(x)}" for x in leaves)
-    return f"{treedef}|{shapes}"
+    return treedef, tuple((np.shape(x), x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
 
 
 # NamedTuples that cross a stored program's boundary: jax.export must know them by a stable name. Each type registers
@@ -175,7 +175,7 @@ def lower(jitted: Callable, key: str | None, args: tuple) -> Any:
 
     try:
         _register_pending()
-        name = hashlib.sha256(f"{key}|{_signature_text(args)}|{_code_fingerprint()}".encode()).hexdigest()
+        name = hashlib.sha256(f"{key}|{signature(args)}|{_code_fingerprint()}".encode()).hexdigest()
         path = _FOLDER / f"{name[:40]}.jaxexport"
         exported = None
         if path.exists():

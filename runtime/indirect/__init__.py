@@ -8,8 +8,7 @@ from .result import SweepResult as SweepResult
 from .result import SweepState as SweepState
 from .sweep import ForwardBackwardSweep as ForwardBackwardSweep
 
-# Name -> class, for the CLI. Indirect methods solve the optimality conditions themselves (``solve(system, params,
-# x0)``, a pure ``run(system, data)``) and produce no NLP.
+# Name -> class, for the CLI. Indirect methods solve the optimality conditions themselves and produce no NLP.
 INDIRECT: dict[str, type] = {
     "fbsm": ForwardBackwardSweep,
 }

@@ -61,21 +61,9 @@ class SweepState(NamedTuple):
 
 @dataclasses.dataclass(frozen=True)
 class SweepResult:
-    """What :meth:`ForwardBackwardSweep.solve` returns: host arrays plus a human-readable outcome.
-
-    Attributes:
-        times, states, controls, costates: the trajectories at the N + 1 nodes.
-        cost: J in minimisation form (RK4 with the running cost as an extra state, plus phi).
-        defect: (n,) x(T) - x_final, NaN where x_i(T) is free.
-        converged: ``status`` is CONVERGED; ``message`` says why not.
-        iterations: relaxed sweeps in all; shooting_iterations: quasi-Newton steps on lambda(T) (bang-bang u*);
-            newton_iterations: Newton steps on Pontryagin's conditions (stationary u*).
-        bound_violation: the worst state-bound violation, relative to the state's nominal scale.
-        relaxation: omega as the step control left it.
-        status: the outcome (:class:`~myriad.runtime.status.Status`); solver_code: the sweep's own
-            (:class:`SweepCode`).
-        compile_seconds, solve_seconds: compilation vs. the solve itself (batch members: the batch's shares).
-    """
+    """What :meth:`ForwardBackwardSweep.solve` returns: one member's :class:`SweepState` on the host (the worst
+    ``bound_violation`` over the states), whether ``status`` is CONVERGED, the outcome in words (``message``), and
+    compilation vs. the solve itself (batch members: the batch's shares)."""
 
     times: Any
     states: Any

@@ -27,13 +27,8 @@ __all__ = ["ForwardBackwardSweep"]
 
 @dataclasses.dataclass(frozen=True)
 class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
-    r"""The forward-backward sweep method (FBSM) on a uniform grid of N intervals.
-
-    Pontryagin's conditions in minimisation form, with H = L + lambda . f:
-
-        x' = f(x, u, t),                 x(0) = x0
-        lambda' = -dH/dx(x, u, lambda, t),  lambda_i(T) = dphi/dx_i(x(T))  for free x_i(T)
-        u(t) = argmin_{u in U} H(x, u, lambda, t)          (``system.optimal_control``)
+    r"""The forward-backward sweep method (FBSM) on a uniform grid of N intervals, on Pontryagin's conditions in
+    minimisation form (:mod:`.pontryagin`).
 
     One sweep, from the current controls u^j at the N + 1 nodes (linearly interpolated, as everywhere):
 
@@ -42,23 +37,12 @@ class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
         3. u*       = u*(x^j, lambda^j, t) at the nodes;                  (steps 1-3: u* = G(u^j))
         4. u^{j+1}  = u^j + omega (u* - u^j)        (omega = ``relaxation``; omega = 1/2 is Lenhart's average).
 
-    Its convergence measure is the relative change: for every control component, max_k |u*_k - u^j_k| <=
-    tol max(max_k |u*_k|, s_u), s_u the control's nominal scale (x and lambda are functions of u, so this is the
-    fixed-point residual of the whole iteration). The returned states and costates are recomputed from the returned
-    controls.
-
-    Why the sweep alone can fail: where H is quadratic in u with curvature R and no control bound is active,
-    u* - u = -R^-1 dJ/du (the sweep is a gradient descent on the cost as a function of u), stable only for
-    omega < 2 / (1 + |mu|_max), mu the eigenvalues of G' = -R^-1 M (M the part of the cost's Hessian that comes
-    through the states). Unstable dynamics make |mu|_max grow roughly like e^{2cT}, c the growth rate, so Lenhart's
-    1/2 can diverge. Hence the step control (halve omega at each sign flip of the correction, :mod:`.relaxation`)
-    and, where u* is stationary and ``newton=True``, Newton's method on
-
-        F(u, theta) = ( (u - G(u; theta)) / s_u ,  (x_fixed(T; u) - x_final) / s_x ) = 0
-
-    once the change is below ``newton_switch`` (:mod:`.newton`). With a bang-bang u* or ``newton=False``, the
-    unknown terminal costates theta of fixed final states are found by Broyden's method around converged sweeps
-    (:mod:`.shooting`). Measured spectra, sweep counts and timings: docs/notes/sweep-convergence.md.
+    It converges when the relative change (:func:`.pontryagin.relative_change`) is at most ``tol``; the returned
+    states and costates are recomputed from the returned controls. Unstable dynamics can make Lenhart's 1/2 diverge:
+    hence the step control on omega (:mod:`.relaxation`) and, where u* is stationary and ``newton=True``, Newton's
+    method on Pontryagin's conditions once the change is below ``newton_switch`` (:mod:`.newton`). With a bang-bang
+    u* or ``newton=False``, the unknown terminal costates of fixed final states are found by Broyden's method around
+    converged sweeps (:mod:`.shooting`). Measurements: docs/notes/sweep-convergence.md.
 
     State bounds are not part of Pontryagin's conditions as used here (no state-constraint multipliers), so the
     sweep cannot enforce them; it checks them instead, and a converged sweep whose trajectory leaves the bounds by
@@ -68,11 +52,9 @@ class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
     Accuracy: the trajectories are O(h^2) (RK4 itself is O(h^4), but a curved control is interpolated linearly);
     the cost, stationary at the optimum, converges faster (O(h^4) on the linear-quadratic test problem).
 
-    Interfaces. As an :class:`~myriad.runtime.method.AbstractMethod` (label ``"fbsm"``, quadrature ``"rk4"``) it
-    plugs into :func:`~myriad.runtime.solve.solve` and ``solve_batch``, and refuses an NLP solver. As an
-    :class:`~myriad.runtime.solvers.pure.AbstractPureSolver` whose problem is the system, ``solve_fn(system)`` is the
-    jitted, vmappable ``(data, z0) -> SweepState`` with ``z0`` the initial controls (N + 1, m) (default: the middle
-    of the control bounds, see :meth:`start`), and ``solve_batch(system, data)`` one vmapped program.
+    Interfaces (README.md in this folder): an :class:`~myriad.runtime.method.AbstractMethod` that refuses an NLP
+    solver, and an :class:`~myriad.runtime.solvers.pure.AbstractPureSolver` whose problem is the system, ``z0`` the
+    initial controls (N + 1, m) (default: :meth:`start`).
 
     Attributes:
         intervals: N.
@@ -142,28 +124,12 @@ class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
 
     # ---- the sweep's own entry points --------------------------------------------------------------------------
 
-    def run(self, system: System, data: ProblemData) -> SweepState:
-        """The sweep as a pure, jitted function of ``data = ProblemData(params, x0)`` (vmappable), from the default
-        controls of :meth:`start`.
-
-        Raises:
-            OptimalControlUnavailable: if the system has no characterised u* (``optimal_control_kind == "none"``).
-        """
-        return self.solve_fn(system)(data, self.start(system, data))
-
     def solve(self, system: System, params: dict | None = None, x0: Any = None, z0: Any = None) -> SweepResult:
-        """Run the sweep and describe the outcome.
-
-        Args:
-            system: the system; it must provide ``costate_dynamics``, ``optimal_control`` and ``terminal_costate``.
-            params: parameter overrides (defaults: the spec's values).
-            x0: initial state (default: the spec's).
-            z0: initial controls (N + 1, m) (default: see :meth:`start`).
+        """Run the sweep (``params``: overrides of the spec's; ``x0``: default the spec's; ``z0``: see :meth:`start`).
 
         Returns:
-            A :class:`SweepResult`; ``converged`` is True only if the controls are a fixed point of the sweep to
-            ``tol``, every required final value is met to ``shooting_tol`` and the trajectory keeps to the state
-            bounds (to ``bound_tol``).
+            A :class:`SweepResult`, ``converged`` only for a fixed point of the sweep to ``tol`` that meets every
+            required final value to ``shooting_tol`` and keeps to the state bounds (to ``bound_tol``).
 
         Raises:
             OptimalControlUnavailable: if ``system.optimal_control_kind == "none"``.
@@ -178,12 +144,8 @@ class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
         return lambda data, z0: _sweep(self, system, data, z0)
 
     def start(self, system: System, data: Any, z0: Any = None) -> np.ndarray:
-        """``z0`` as float64 controls (N + 1, m), or the default: the middle of the control bounds where both are
-        finite, else 0 clipped into the bounds, at every node.
-
-        Raises:
-            ValueError: ``z0`` of another shape.
-        """
+        """``z0`` as float64 controls (N + 1, m) (ValueError: another shape), or the default: the middle of the
+        control bounds where both are finite, else 0 clipped into the bounds, at every node."""
         shape = (self.intervals + 1, system.n_controls)
         if z0 is None:
             return np.asarray(guess_controls(system, shape[0]), dtype=np.float64)

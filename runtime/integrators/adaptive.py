@@ -24,17 +24,11 @@ class Adaptive(AbstractIntegrator):
 
         ||e||_rms <= 1,   e_i = err_i / (atol + rtol |x_i|),
 
-    with the control u(s) = u0 + (s - t)/h (u1 - u0), the same linear interpolation as the fixed-step integrators.
-    Restarting the solver at every node is deliberate: a piecewise-linear control has a kink at each node, and a
-    step that straddles a kink would degrade the embedded error estimate. The "re-simulated" evaluation that
-    ``solve()`` and the benches report is not this class but :class:`~myriad.runtime.integrators.DormandPrince`
-    (:func:`myriad.runtime.solution.resimulate`); this one is diffrax's, differentiable in reverse mode.
-
-    A step whose solve fails (``max_steps`` exhausted, non-finite values) returns NaN rather than raising, so failures
-    survive ``jax.vmap`` and show up in the result instead of aborting a batch.
-
-    Gradients: reverse mode only (diffrax's default checkpointed adjoint); this integrator is for evaluation, and
-    the transcriptions use the fixed-step ones.
+    with the control linear in s, as for the fixed-step integrators. Restarting the solver at every node is
+    deliberate: a piecewise-linear control has a kink at each node, and a step that straddles a kink would degrade the
+    embedded error estimate. Differentiable in reverse mode only (diffrax's checkpointed adjoint), unlike
+    :class:`~myriad.runtime.integrators.DormandPrince`, every solve's re-simulation. A step whose solve fails
+    (``max_steps`` exhausted, non-finite values) returns NaN rather than raising, so failures survive ``jax.vmap``.
 
     Attributes:
         method: "tsit5" (default), "dopri5" or "dopri8".

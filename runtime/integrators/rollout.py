@@ -21,22 +21,13 @@ def rollout(
     controls: Any,
     checkpoint: bool = False,
 ) -> Any:
-    """Integrate x' = f(x, u, t) from x(t0) = x0 over the grid t_k = t0 + k h, k = 0..N, one step per interval, the
-    control linear from controls[k] to controls[k + 1] on interval k.
+    """The states (N + 1, n) at the nodes t_k = t0 + k h (``h`` negative: backwards in time), or at the node times
+    ``t0`` themselves (any spacing) when ``h`` is None, of x' = f(x, u, t) from x0 (row 0), one ``integrator`` step per
+    interval, the control linear from controls[k] to controls[k + 1] (``controls``: (N + 1, m)) on interval k.
 
-    Args:
-        integrator: the one-step method.
-        f: the vector field f(x, u, t).
-        x0: initial state, shape (n,).
-        t0: initial time (scalar); with ``h`` None, the N + 1 node times themselves (any spacing).
-        h: step size (scalar; negative integrates backwards in time), or None (see ``t0``).
-        controls: control values at the N + 1 nodes, shape (N + 1, m).
-        checkpoint: differentiate with rematerialisation: reverse mode keeps only the state at each node and
-            recomputes the step's intermediates on the way back. Values are unchanged; derivatives are the same up
-            to rounding. See :class:`~myriad.runtime.transcriptions.SingleShooting` for when it pays.
-
-    Returns:
-        The states at the N + 1 nodes, shape (N + 1, n); row 0 is x0.
+    ``checkpoint``: differentiate with rematerialisation: reverse mode keeps only the state at each node and
+    recomputes the step's intermediates on the way back; values unchanged, derivatives the same up to rounding (when
+    it pays: :class:`~myriad.runtime.transcriptions.SingleShooting`).
     """
     x0 = jnp.asarray(x0)
     controls = jnp.asarray(controls)

@@ -24,12 +24,14 @@ from ..system import System
 from .error import REFERENCE_SUBSTEPS, estimate, interval_errors
 from .grid import check_grid, free_node_times, grid_argument, node_times
 from .nlp_parts import (
+    collocation_blocks,
     final_time_variable,
     final_value_rows,
     guess_controls,
     guess_states,
     node_state_bounds,
     path_bounds,
+    sparsity,
 )
 from .nominal_scales import control_scale, state_scale
 
@@ -54,19 +56,12 @@ class AbstractTranscription(AbstractMethod):
       c_lower = c_upper = 0; required final values appear as x_i(T) - x_final,i. Defect rows are divided by the
       state's nominal scale; required final values are *not* scaled, so a solver's constraint tolerance is the
       absolute tolerance on x_i(T).
-    - Path constraints (schema 2) are the last rows, point-major (all of point 0's, then point 1's ...):
-      path_lower / s <= g(x_k, u_k, t_k) / s <= path_upper / s, with s the constraint's nominal scale
-      (:func:`~myriad.runtime.transcriptions.nominal_scales.path_scale`), at every point ``unravel`` returns (every
-      node; Hermite-Simpson's midpoints too; for shooting the control nodes, with the states the rollout reaches
-      there).
-    - A free final time (schema 2, ``system.free_horizon``) is the *last* entry of ``z``, bounded by
-      ``horizon_bounds``, started at ``horizon_guess``, scaled by the guess. The grid is in tau in [0, 1] and the
-      node times are t_k = T s_k (``grid.free_node_times``), which is the time scaling x' = T f in tau; the terminal
-      cost is evaluated at t = T.
-    - Control and state bounds are ``z_lower`` / ``z_upper`` (infinite where unbounded). A state with a required
-      final value has no bound at the final node (the equality pins it; a duplicate active bound would make the
-      constraint gradients linearly dependent). ``z_scale`` holds nominal magnitudes from
-      :func:`~myriad.runtime.transcriptions.state_scale` and :func:`~myriad.runtime.transcriptions.control_scale`.
+    - Path constraints (schema 2) are the last rows, point-major, divided by their nominal scale, at every point
+      ``unravel`` returns; a free final time is the *last* entry of ``z``, the grid in tau = t / T in [0, 1]
+      (README.md in this folder).
+    - Control and state bounds are ``z_lower`` / ``z_upper`` (infinite where unbounded), none at the final node for a
+      state with a required final value (:func:`~.nlp_parts.node_state_bounds`); ``z_scale`` holds nominal
+      magnitudes (:mod:`.nominal_scales`).
     - The functions are pure and not jitted: the solver jits them with ``data`` as a traced argument, so new
       parameters or a new x0 reuse the compiled code, and a batch of ``data`` is one ``jax.vmap``.
     - ``unravel(z, data)`` returns ``(times, states, controls)`` on the transcription's own grid, x(0) included,
@@ -77,19 +72,26 @@ class AbstractTranscription(AbstractMethod):
 
     Concrete transcriptions are frozen, hashable dataclasses (static ``jax.jit`` arguments).
 
-    Class attributes (besides ``label`` and ``quadrature``):
-        order: the global order p of the discretisation (its local error on an interval is O(h^{p+1})): the
-            integrator's for shooting, 2 for trapezoidal, 4 for Hermite-Simpson.
+    Class attributes (besides ``label``), or properties:
+        quadrature, order: the rule and the global order p of the discretisation (its local error on an interval is
+            O(h^{p+1})): the ``integrator``'s for shooting, 2 for trapezoidal, 4 for Hermite-Simpson.
         steps_per_mesh_interval: how many grid intervals refinement treats as one (multiple shooting: the S steps
             of a shooting interval; 1 elsewhere).
     """
 
-    order: ClassVar[int]
     steps_per_mesh_interval: ClassVar[int] = 1
 
-    # The grid: N intervals in a field ``intervals`` and a ``grid`` field, checked here once for every transcription
-    # whose N is its own size field (single shooting and the collocations); multiple shooting, whose ``intervals``
-    # counts shooting intervals of S steps each, overrides all four.
+    @property
+    def quadrature(self) -> str:
+        return getattr(self, "integrator").label
+
+    @property
+    def order(self) -> int:
+        return getattr(self, "integrator").order
+
+    # The grid: ``intervals`` mesh intervals of ``steps_per_mesh_interval`` steps and a ``grid`` field, checked here
+    # for every transcription whose N is its own size field (single shooting and the collocations); multiple
+    # shooting, whose ``intervals`` counts shooting intervals of S steps each, overrides on_grid and __post_init__.
 
     @classmethod
     def on_grid(cls, intervals, **options: Any) -> "AbstractTranscription":
@@ -105,7 +107,7 @@ class AbstractTranscription(AbstractMethod):
     @property
     def grid_intervals(self) -> int:
         """N, the number of intervals of the control grid (the size ``on_grid(N)`` takes)."""
-        return getattr(self, "intervals")
+        return getattr(self, "intervals") * self.steps_per_mesh_interval
 
     def with_grid(self, grid: tuple[float, ...]) -> "AbstractTranscription":
         """This transcription, every other option kept, on the grid of normalised node positions ``grid``.
@@ -113,7 +115,11 @@ class AbstractTranscription(AbstractMethod):
         Raises:
             ValueError: a grid this transcription cannot have (see ``__post_init__``).
         """
-        return dataclasses.replace(self, intervals=len(grid) - 1, grid=tuple(grid))
+        steps, S = len(grid) - 1, self.steps_per_mesh_interval
+        if steps % S:
+            raise ValueError(f"{type(self).__name__}: a grid of {steps} steps cannot be cut into shooting intervals "
+                             f"of {S} steps")
+        return dataclasses.replace(self, intervals=steps // S, grid=tuple(grid))
 
     def positions(self) -> np.ndarray:
         """The normalised node positions of the control grid, (N + 1,): the ``grid``, or the uniform one."""
@@ -127,20 +133,11 @@ class AbstractTranscription(AbstractMethod):
 
     def sample(self, system: System, states: TrajectoryFn, controls: TrajectoryFn,
                final_time: float | None = None) -> np.ndarray:
-        """The decision vector that samples given trajectories on this transcription's grid.
+        """``z`` (float64) sampling given trajectories, ``states`` and ``controls`` (times (K,) -> values (K, d)), on
+        this transcription's grid: a warm start from another solution, or a known solution to check.
 
-        Useful to warm-start from another solution (interpolate it) and to check a known solution.
-
-        Args:
-            system: the system the NLP was built for.
-            states: times (K,) -> states (K, n_states).
-            controls: times (K,) -> controls (K, n_controls).
-            final_time: the horizon the trajectories live on, in physical time: with a free final time, the T of
-                the sample (its last entry); None for ``system.horizon`` (the fixed horizon, or the guess of a free
-                one). An argument rather than read from the functions, which are plain callables without a domain.
-
-        Returns:
-            ``z``, a float64 array of shape (n_variables,).
+        ``final_time``: the horizon the trajectories live on (with a free final time, the sample's T); None for
+        ``system.horizon``. An argument because the functions are plain callables without a domain.
 
         Raises:
             ValueError: a final time other than the fixed horizon of a system whose horizon is not free.
@@ -244,6 +241,25 @@ class Transcribed:
 
         return initial_guess
 
+    def collocation_nodes(self, z, data):
+        """A collocation's ``z`` as the states x_0..x_N (x_0 = data.x0), the node controls and the rest of ``z``."""
+        N, n, m = self.N, self.n, self.m
+        nX, nU = N * n, (N + 1) * m
+        X = jnp.reshape(z[:nX], (N, n))
+        xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
+        return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), z[nX + nU :]
+
+    def collocation_nlp(self, midpoints: bool = False) -> NLP:
+        """:meth:`node_nlp` of a collocation: states at its N nodes, controls and path rows at each node (and
+        ``midpoints``)."""
+        N, controls = self.N, 2 * self.N + 1 if midpoints else self.N + 1
+        blocks = collocation_blocks(N, self.n, self.m, self.fixed, self.system.n_path, self.T_lo.size, midpoints)
+        return self.node_nlp(
+            N, controls, controls, objective=self.objective, constraints=self.constraints,
+            initial_guess=self.initial_guess_of(self.times[1:], controls), unravel=self.unravel,
+            jacobian_sparsity=sparsity(blocks), name=self.name(f"N={N}"),
+        )
+
     def node_nlp(self, nodes: int, controls: int, path_points: int, **functions) -> NLP:
         """The NLP of decisions ``[states at `nodes` nodes, `controls` controls, T]`` bounded on every node, whose
         rows are the defects (``nodes`` n, = 0), the required final values, then path rows at ``path_points``."""
@@ -296,9 +312,8 @@ def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
 @functools.lru_cache(maxsize=256)
 def _trajectory(nlp: NLP, system: System, midpoints: bool, batched: bool = False) -> CompiledFunction:
     """``(z, data) ->`` the trajectory on the grid and its per-interval local errors, one program per NLP and shapes
-    (an eager unravel would re-trace its scan on every solve; one program rather than two halves what a later process
-    reads back from the program store). ``batched``: vmapped over a batch's members, one dispatch for all of them
-    (one per member was a third of a 1024-member batch's wall time on Mould Fungicide)."""
+    (an eager unravel would re-trace its scan on every solve). ``batched``: vmapped over a batch's members, one
+    dispatch for all of them (one per member dominated large batches)."""
 
     def trajectory(z, data):
         times, states, controls = nlp.unravel(z, data)
@@ -309,12 +324,14 @@ def _trajectory(nlp: NLP, system: System, midpoints: bool, batched: bool = False
                             program_key(nlp.key, f"trajectory:{midpoints}:{REFERENCE_SUBSTEPS}:{batched}"))
 
 
-def _trajectories(system: System, transcription: AbstractTranscription, nlp: NLP, z: np.ndarray, data) -> list:
-    """Each member's ``(times, states, controls, per-interval errors)`` as host arrays, from one batched program."""
-    program, args = _trajectory(nlp, system, transcription.quadrature == "simpson", True), (z, data)
+def _trajectories(system: System, transcription: AbstractTranscription, nlp: NLP, z: np.ndarray, data,
+                  batched: bool = True) -> Any:
+    """``(times, states, controls, per-interval errors)`` as host arrays; ``batched``: each member's, from one
+    program over a batch (``z`` and ``data`` with a leading batch axis)."""
+    program, args = _trajectory(nlp, system, transcription.quadrature == "simpson", batched), (z, data)
     program.compile(*args)
     arrays = [np.asarray(a) for a in program(*args)]
-    return [tuple(a[i] for a in arrays) for i in range(z.shape[0])]
+    return [tuple(a[i] for a in arrays) for i in range(z.shape[0])] if batched else tuple(arrays)
 
 
 def _solution(system: System, transcription: AbstractTranscription, solver, nlp: NLP, res, data,
@@ -324,9 +341,7 @@ def _solution(system: System, transcription: AbstractTranscription, solver, nlp:
     # Simpson's rule sees a midpoint control: the grid interleaves nodes and midpoints (see error.py).
     midpoints = transcription.quadrature == "simpson"
     if trajectory is None:
-        program, args = _trajectory(nlp, system, midpoints), (np.asarray(res.z, dtype=np.float64), data)
-        program.compile(*args)
-        trajectory = tuple(np.asarray(a) for a in program(*args))
+        trajectory = _trajectories(system, transcription, nlp, np.asarray(res.z, dtype=np.float64), data, False)
     times, states, controls, per_interval = trajectory
     defect = (states[-1] - np.asarray(system.final_values))[system.final_mask]
     error = estimate(per_interval, times[::2] if midpoints else times)

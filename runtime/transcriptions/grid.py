@@ -23,17 +23,9 @@ Grid = tuple[float, ...]
 
 
 def check_grid(owner: str, grid: Sequence[float] | None, intervals: int, count: str = "intervals") -> Grid | None:
-    """``grid`` as a tuple of floats, after checking it is a grid of ``intervals`` intervals on [0, 1].
-
-    Args:
-        owner: the class name, for the messages.
-        grid: the node positions, any sequence of numbers (a list or array is converted), or None (uniform).
-        intervals: the number of intervals the transcription's own size field says.
-        count: the name of that field (``controls`` for single shooting), for the messages.
-
-    Raises:
-        ValueError: what is wrong and how to fix it.
-    """
+    """``grid`` (any sequence of numbers, or None) as a tuple of floats, after checking it is a grid of ``intervals``
+    intervals on [0, 1], the size the field ``count`` of the class ``owner`` says (ValueError: what is wrong and how
+    to fix it)."""
     if grid is None:
         return None
     try:

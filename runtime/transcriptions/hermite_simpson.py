@@ -13,7 +13,7 @@ from ..nlp import NLP
 from ..system import System
 from .base import AbstractTranscription, Transcribed
 from .grid import Grid, column, node_times, weighted_sum
-from .nlp_parts import collocation_blocks, path_rows, sparsity
+from .nlp_parts import path_rows
 
 __all__ = ["HermiteSimpson"]
 
@@ -40,9 +40,6 @@ class HermiteSimpson(AbstractTranscription):
 
     Path constraints hold at the nodes and at the midpoints (with the Hermite midpoint state), in the order of the
     half-step grid; a midpoint row depends on both nodes of its interval and its three controls.
-
-    A free final time (``system.free_horizon``) is the last entry of z; t_k = T s_k and h_k = T (s_{k+1} - s_k)
-    (``grid.free_node_times``: the time scaling to tau in [0, 1]), and phi is evaluated at T.
 
     NOTE: the compressed form (Kelly 2017, sec. 4) has n fewer variables and n fewer constraints per interval than
     the separated form, which matters for the dense solvers; the price is that state bounds hold at the nodes only,
@@ -100,17 +97,11 @@ class _Transcribed(Transcribed):
         T, ts, hs = super().clock(z)
         return T, ts, ts[:-1] + 0.5 * hs if self.free else jnp.asarray(self.mid_times), hs
 
-    def split(self, z, data):
-        N, n, m = self.N, self.n, self.m
-        nX, nU = N * n, (N + 1) * m
-        X = jnp.reshape(z[:nX], (N, n))
-        xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
-        return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m)), jnp.reshape(z[nX + nU : nX + nU + N * m], (N, m))
-
     def collocate(self, z, data):
         f = jax.vmap(self.fields(data.params)[0])
         _, ts, tms, hs = self.clock(z)
-        xs, us, ums = self.split(z, data)
+        xs, us, rest = self.collocation_nodes(z, data)
+        ums = jnp.reshape(rest[: self.N * self.m], (self.N, self.m))
         fs = f(xs, us, ts)
         xms = 0.5 * (xs[:-1] + xs[1:]) + (column(hs) / 8.0) * (fs[:-1] - fs[1:])
         return xs, us, ums, xms, fs, f(xms, ums, tms)
@@ -140,13 +131,7 @@ class _Transcribed(Transcribed):
         return half, _interleave(xs, xms), _interleave(us, ums)
 
     def nlp(self) -> NLP:
-        N = self.N
-        return self.node_nlp(
-            N, 2 * N + 1, 2 * N + 1, objective=self.objective, constraints=self.constraints,
-            initial_guess=self.initial_guess_of(self.times[1:], 2 * N + 1), unravel=self.unravel,
-            jacobian_sparsity=sparsity(_blocks(N, self.n, self.m, self.fixed, self.system.n_path, self.T_lo.size)),
-            name=self.name(f"N={N}"),
-        )
+        return self.collocation_nlp(midpoints=True)
 
 
 def _interleave(nodes, mids):
@@ -155,21 +140,3 @@ def _interleave(nodes, mids):
     both = jnp.concatenate([nodes[:-1, None], mids[:, None]], axis=1)  # (N, 2, d)
     return jnp.concatenate([jnp.reshape(both, (2 * N, -1)), nodes[-1:]], axis=0)
 
-
-def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) -> list:
-    """The Jacobian's structurally non-zero blocks: defects, final values, path rows on the half-step grid
-    (``n_T``: 1 with a free final time, whose column every row has, else 0)."""
-    nX, nU = N * n, (N + 1) * m
-    T_col = np.arange(nX + nU + N * m, nX + nU + N * m + n_T)
-    blocks = collocation_blocks(N, n, m, fixed, T_col, midpoints=True)
-    for p in range(2 * N + 1):  # the half-step grid: node p / 2, or the midpoint of interval (p - 1) / 2
-        rows = N * n + fixed.size + p * n_path + np.arange(n_path)
-        k = p // 2
-        if p % 2 == 0:
-            cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [nX + np.arange(k * m, (k + 1) * m)]
-        else:
-            cols = ([np.arange((k - 1) * n, k * n)] if k > 0 else []) + [
-                np.arange(k * n, (k + 1) * n), nX + np.arange(k * m, (k + 2) * m),
-                nX + nU + np.arange(k * m, (k + 1) * m)]
-        blocks.append((rows, np.concatenate(cols + [T_col]), False))
-    return blocks

@@ -39,9 +39,6 @@ class MultipleShooting(AbstractTranscription):
     Path constraints hold at every control node: at a shooting node the node variable X_j, between them the state
     the interval's rollout reaches (so row k depends on its interval's start X_j and the controls up to u_k only).
 
-    A free final time (``system.free_horizon``) is the last entry of z; the nodes are t_k = T s_k and the steps
-    T (s_{k+1} - s_k) (``grid.free_node_times``, the time scaling to tau in [0, 1]), phi is evaluated at T.
-
     Layout of z: ``[X_1..X_M (M n), u_0..u_N ((N + 1) m), T (free final time only)]``. The constraint Jacobian is
     block-banded: defect j depends densely on X_j and on the S + 1 controls of interval j, and only diagonally on
     X_{j+1}; the column of a free T is dense in the defect and path rows.
@@ -64,12 +61,8 @@ class MultipleShooting(AbstractTranscription):
     @classmethod
     def on_grid(cls, intervals, **options) -> "MultipleShooting":
         """``intervals`` = N control intervals (or a grid of N + 1 node positions), cut into shooting intervals of
-        ``steps_per_interval`` steps each.
-
-        Without ``steps_per_interval``, the default 5 steps per shooting interval (the largest of 5, 4, 3, 2, 1 that
-        divides N), so ``on_grid(100)`` is 20 shooting intervals of 5 steps: the same control grid as
-        ``SingleShooting(intervals=100)``.
-        """
+        ``steps_per_interval`` steps each: by default the largest of 5, 4, 3, 2, 1 that divides N, so ``on_grid(100)``
+        is ``SingleShooting(intervals=100)``'s control grid in 20 shooting intervals of 5 steps."""
         intervals, grid = grid_argument(intervals)
         if grid is not None:
             options["grid"] = grid
@@ -83,10 +76,6 @@ class MultipleShooting(AbstractTranscription):
                              f"of {steps} steps; choose a multiple of {steps}")
         return cls(intervals=intervals // steps, steps_per_interval=steps, **options)
 
-    @property
-    def quadrature(self) -> str:
-        return self.integrator.label
-
     def __post_init__(self):
         if self.intervals < 1 or self.steps_per_interval < 1:
             raise ValueError(
@@ -98,24 +87,9 @@ class MultipleShooting(AbstractTranscription):
         object.__setattr__(self, "grid", grid)
 
     @property
-    def grid_intervals(self) -> int:
-        return self.intervals * self.steps_per_interval
-
-    @property
-    def order(self) -> int:
-        return self.integrator.order
-
-    @property
     def steps_per_mesh_interval(self) -> int:
         # Refinement splits shooting intervals, each keeping its S steps (see refine.py).
         return self.steps_per_interval
-
-    def with_grid(self, grid) -> "MultipleShooting":
-        steps = len(grid) - 1
-        if steps % self.steps_per_interval:
-            raise ValueError(f"MultipleShooting: a grid of {steps} steps cannot be cut into shooting intervals of "
-                             f"{self.steps_per_interval} steps")
-        return dataclasses.replace(self, intervals=steps // self.steps_per_interval, grid=tuple(grid))
 
     def transcribe(self, system: System) -> NLP:
         return _Transcribed(self, system).nlp()

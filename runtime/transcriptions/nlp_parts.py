@@ -39,16 +39,8 @@ def guess_controls(system: System, k: int) -> np.ndarray:
 
 
 def guess_states(system: System, x0: Any, times: np.ndarray) -> Any:
-    """States moving linearly from x0 to the required final values, free ones held at x0, clipped to the bounds.
-
-    Args:
-        system: the system.
-        x0: initial state (n,), possibly traced.
-        times: (K,) times in [0, T].
-
-    Returns:
-        (K, n) states.
-    """
+    """States (K, n) at the times (K,) in [0, T], moving linearly from x0 (possibly traced) to the required final
+    values, free ones held at x0, clipped to the bounds."""
     a = system.arrays()
     x0 = jnp.asarray(x0)
     s = jnp.asarray(np.asarray(times, dtype=np.float64) / system.horizon)[:, None]
@@ -59,15 +51,9 @@ def guess_states(system: System, x0: Any, times: np.ndarray) -> Any:
 
 
 def sparsity(blocks: Iterable[tuple[np.ndarray, np.ndarray, bool]]) -> tuple[np.ndarray, np.ndarray]:
-    """A Jacobian pattern from blocks of structurally non-zero entries.
-
-    Args:
-        blocks: ``(rows, cols, diagonal)`` triples; ``diagonal=False`` marks every (row, col) pair of the two index
-            arrays, ``diagonal=True`` only the pairs (rows[i], cols[i]).
-
-    Returns:
-        ``(rows, cols)``, int64, without duplicates, sorted by row then column.
-    """
+    """A Jacobian pattern ``(rows, cols)`` (int64, without duplicates, sorted by row then column) from blocks of
+    structurally non-zero entries, ``(rows, cols, diagonal)`` triples: ``diagonal=False`` marks every (row, col) pair
+    of the two index arrays, ``diagonal=True`` only the pairs (rows[i], cols[i])."""
     rs, cs = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
     for r, c, diagonal in blocks:
         r = np.asarray(r, dtype=np.int64)
@@ -83,12 +69,16 @@ def sparsity(blocks: Iterable[tuple[np.ndarray, np.ndarray, bool]]) -> tuple[np.
     return pairs[:, 0].copy(), pairs[:, 1].copy()
 
 
-def collocation_blocks(N: int, n: int, m: int, fixed: np.ndarray, T_col: np.ndarray, midpoints: bool = False) -> list:
+def collocation_blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int,
+                       midpoints: bool = False) -> list:
     """A collocation Jacobian's structurally non-zero blocks for ``sparsity``: the defect of interval ``k`` couples
     ``x_k`` (a variable from ``k = 1``: ``x_0`` is given), ``x_{k+1}``, ``u_k``, ``u_{k+1}`` and, with ``midpoints``,
-    ``u_{k+1/2}`` (stored after the node controls); then one row per required final value. Variables: the states
-    ``x_1 .. x_N``, the node controls, the midpoint controls; every row also has ``T_col`` (a free final time's)."""
+    ``u_{k+1/2}`` (stored after the node controls); then one row per required final value; then ``n_path`` path rows
+    per node (and midpoint), a node's on its own state and control, a midpoint's on its interval's. Variables: the
+    states ``x_1 .. x_N``, the node controls, the midpoint controls, then ``n_T`` (1 for a free final time, whose
+    column every row has, else 0)."""
     nX, nU = N * n, (N + 1) * m
+    T_col = np.arange(nX + nU + N * m * midpoints, nX + nU + N * m * midpoints + n_T)
     blocks = []
     for k in range(N):
         cols = [np.arange(k * n, (k + 1) * n)]  # x_{k+1}
@@ -100,6 +90,15 @@ def collocation_blocks(N: int, n: int, m: int, fixed: np.ndarray, T_col: np.ndar
         blocks.append((k * n + np.arange(n), np.concatenate(cols + [T_col]), False))
     for r, i in enumerate(fixed):
         blocks.append((np.array([N * n + r]), np.array([(N - 1) * n + i]), True))
+    for p in range(2 * N + 1 if midpoints else N + 1):  # with midpoints the half-step grid: node p / 2 or interval's
+        k, mid = (p // 2, p % 2) if midpoints else (p, 0)
+        cols = [np.arange((k - 1) * n, k * n)] if k > 0 else []
+        if mid:
+            cols += [np.arange(k * n, (k + 1) * n), nX + np.arange(k * m, (k + 2) * m),
+                     nX + nU + np.arange(k * m, (k + 1) * m)]
+        else:
+            cols.append(nX + np.arange(k * m, (k + 1) * m))
+        blocks.append((N * n + fixed.size + p * n_path + np.arange(n_path), np.concatenate(cols + [T_col]), False))
     return blocks
 
 
@@ -110,24 +109,17 @@ def final_value_rows(system: System) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bounded_free_states(system: System) -> np.ndarray:
-    """States with at least one finite bound and no required final value.
-
-    A state whose final value is required gets no bound row: the equality already pins it, and a duplicate active
-    row (e.g. Predator Prey's z(T) = B with z <= B) would break the linear independence of the constraint
-    gradients.
-    """
+    """States with at least one finite bound and no required final value (why: :func:`node_state_bounds`)."""
     a = system.arrays()
     finite = np.isfinite(a["x_lower"]) | np.isfinite(a["x_upper"])
     return np.flatnonzero(finite & ~system.final_mask)
 
 
 def node_state_bounds(system: System, nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """State bounds tiled over ``nodes`` node-state blocks (the last block is x(T)), flattened to (nodes * n,).
-
-    The last node's bounds are dropped (set to -inf/+inf) for the states with a required final value: the equality
-    row already pins them, and an active bound duplicating it (Predator Prey's z(T) = B with z <= B) would make the
-    constraint gradients linearly dependent, which interior-point solvers dislike.
-    """
+    """State bounds tiled over ``nodes`` node-state blocks (the last block is x(T)), flattened to (nodes * n,),
+    without the last node's for the states with a required final value: the equality row pins them, and an active
+    bound duplicating it (Predator Prey's z(T) = B with z <= B) would make the constraint gradients linearly
+    dependent."""
     a = system.arrays()
     lo = np.tile(a["x_lower"], (nodes, 1))
     hi = np.tile(a["x_upper"], (nodes, 1))
@@ -140,11 +132,8 @@ def node_state_bounds(system: System, nodes: int) -> tuple[np.ndarray, np.ndarra
 
 
 def path_rows(system: System, params: Any, xs: Any, us: Any, ts: Any) -> Any:
-    """The path-constraint rows at K points, g(x_k, u_k, t_k) / scale, point-major: (K * n_path,).
-
-    Empty (and free of any evaluation) for a system without path constraints, so that a schema 1 NLP stays the
-    NLP it always was.
-    """
+    """The path-constraint rows at K points, g(x_k, u_k, t_k) / scale, point-major: (K * n_path,); empty (and free
+    of any evaluation) for a system without path constraints, so that a schema 1 NLP stays the NLP it always was."""
     if not system.n_path:
         return jnp.zeros((0,), dtype=jnp.result_type(xs))
     g = jax.vmap(lambda x, u, t: system.path_constraints(x, u, t, params))(xs, us, jnp.asarray(ts))
@@ -161,11 +150,8 @@ def path_bounds(system: System, points: int) -> tuple[np.ndarray, np.ndarray]:
 
 def final_time_variable(system: System) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The free final time as the last decision variable: ``(lower, upper, scale, guess)``, each of shape (1,), or
-    of shape (0,) when the horizon is fixed (so that concatenating them changes nothing).
-
-    Its nominal scale is the guess: the bounds of a minimum-time problem are often wide ([0.1, 10] around T* = 2),
-    and the largest of them would make the variable look ten times smaller than it is.
-    """
+    (0,) when the horizon is fixed. Its nominal scale is the guess: the bounds of a minimum-time problem are often
+    wide ([0.1, 10] around T* = 2), and the largest would make the variable look ten times smaller than it is."""
     if not system.free_horizon:
         empty = np.zeros(0)
         return empty, empty, empty, empty

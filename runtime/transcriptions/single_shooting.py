@@ -42,16 +42,12 @@ class SingleShooting(AbstractTranscription):
     divided by their nominal scale; required final values are not. The constraint Jacobian is dense (every
     x_N depends on every control), so ``jacobian_sparsity`` is None.
 
-    A free final time (``system.free_horizon``) is the last entry of z: the nodes are t_k = T s_k and the steps
-    T (s_{k+1} - s_k) (``grid.free_node_times``: the time scaling to tau in [0, 1]), and phi is evaluated at T.
     Layout of z: ``[u_0..u_N ((N + 1) m), p, n (soft state bounds only), T (free final time only)]``.
 
     Soft state bounds (``soft_state_bounds=rho``): each final-state bound row becomes elastic,
     ``lo_i <= x_N,i / s_i + p_i - n_i <= hi_i`` with slacks ``p, n >= 0`` and ``rho * sum(p + n)`` added to the cost
-    (the L1 exact penalty of IPOPT's restoration phase and acados' soft constraints). Where the hard problem is
-    feasible and ``rho`` exceeds the rows' multipliers the solution is the same, slacks 0; where it is not (a
-    learned model that cannot keep a population positive), the plan violates the bound as little as it can
-    instead of the solve failing. Required final values stay hard.
+    (the L1 exact penalty: the same optimum where the hard problem is feasible and ``rho`` exceeds the rows'
+    multipliers, else the least violation; README.md in this folder). Required final values stay hard.
 
     Attributes:
         intervals: N, the number of control intervals (N + 1 control nodes).
@@ -74,14 +70,6 @@ class SingleShooting(AbstractTranscription):
     checkpoint: bool = True
     grid: Grid | None = None
     soft_state_bounds: float | None = None
-
-    @property
-    def order(self) -> int:
-        return self.integrator.order
-
-    @property
-    def quadrature(self) -> str:
-        return self.integrator.label
 
     def __post_init__(self):
         super().__post_init__()  # intervals and grid (see AbstractTranscription)

@@ -176,10 +176,8 @@ def stage_derivatives(
         \qquad \delta y_{k+1} = A_k \delta y_k + B_k \delta v_k,\quad \delta y_0 = 0,\quad \delta v_k =
         \delta z[\text{index}_k],
 
-    which a Riccati recursion factorises in ``O(N)`` (``solvers/interior_point/riccati.py``). The gradient and the
-    Jacobian come from ``1 + m`` adjoints (``Lambda_N = dG/dy_N``, ``Lambda_k = Lambda_{k+1} A_k``, row ``i`` of
-    ``dG/dv_k`` is ``Lambda^i_{k+1} B_k``), scattered to ``z`` by ``index``: ``O(N n_y (1 + m))`` without the
-    ``n_y x n_z`` forward sensitivities or the ``n_z x n_z`` Hessian. Arguments as :func:`staged_derivatives`.
+    which a Riccati recursion factorises in ``O(N)`` (``solvers/interior_point/riccati.py``), with no ``n_z x n_z``
+    Hessian formed (the first derivatives: :func:`_first_order`). Arguments as :func:`staged_derivatives`.
     """
     index = np.asarray(index)  # static: its gathers and scatters are strided slices (smallops)
     r = _rollout(step, terminal, y0, z, index)

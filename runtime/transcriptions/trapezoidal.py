@@ -7,13 +7,12 @@ from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from ..nlp import NLP
 from ..system import System
 from .base import AbstractTranscription, Transcribed
 from .grid import Grid, column, node_times, weighted_sum
-from .nlp_parts import collocation_blocks, path_rows, sparsity
+from .nlp_parts import path_rows
 
 __all__ = ["Trapezoidal"]
 
@@ -31,9 +30,6 @@ class Trapezoidal(AbstractTranscription):
                     g_lo <= g(x_k, u_k, t_k) <= g_hi    k = 0..N  (path constraints, divided by their scale)
                     x_lower <= x_k <= x_upper,  u_lower <= u_k <= u_upper   (bounds on every node)
                     T_lower <= T <= T_upper   (a free final time)
-
-    A free final time (``system.free_horizon``) is the last entry of z; t_k = T s_k and h_k = T (s_{k+1} - s_k)
-    (``grid.free_node_times``: the time scaling to tau in [0, 1]), and phi is evaluated at T.
 
     Layout of z: ``[x_1..x_N (N n), u_0..u_N ((N + 1) m), T (free final time only)]``; defect k depends on x_k,
     x_{k+1}, u_k, u_{k+1} (and T), path row k on x_k, u_k (and T).
@@ -62,16 +58,9 @@ class Trapezoidal(AbstractTranscription):
 class _Transcribed(Transcribed):
     """Trapezoidal collocation's NLP for one system."""
 
-    def nodes(self, z, data):
-        N, n, m = self.N, self.n, self.m
-        nX, nU = N * n, (N + 1) * m
-        X = jnp.reshape(z[:nX], (N, n))
-        xs = jnp.concatenate([jnp.asarray(data.x0)[None], X], axis=0)
-        return xs, jnp.reshape(z[nX : nX + nU], (N + 1, m))
-
     def objective(self, z, data):
         params = data.params
-        xs, us = self.nodes(z, data)
+        xs, us, _ = self.collocation_nodes(z, data)
         T, ts, hs = self.clock(z)
         Ls = jax.vmap(self.fields(params)[1])(xs, us, ts)
         quad = weighted_sum(hs, Ls[:-1] + Ls[1:], lambda h: 0.5 * h)
@@ -79,7 +68,7 @@ class _Transcribed(Transcribed):
 
     def constraints(self, z, data):
         params = data.params
-        xs, us = self.nodes(z, data)
+        xs, us, _ = self.collocation_nodes(z, data)
         _, ts, hs = self.clock(z)
         fs = jax.vmap(self.fields(params)[0])(xs, us, ts)
         defects = (xs[1:] - xs[:-1] - 0.5 * column(hs) * (fs[:-1] + fs[1:])) / self.sx
@@ -87,27 +76,9 @@ class _Transcribed(Transcribed):
                                 path_rows(self.system, params, xs, us, ts)])
 
     def unravel(self, z, data):
-        xs, us = self.nodes(z, data)
+        xs, us, _ = self.collocation_nodes(z, data)
         return self.clock(z)[1], xs, us
 
     def nlp(self) -> NLP:
-        N = self.N
-        return self.node_nlp(
-            N, N + 1, N + 1, objective=self.objective, constraints=self.constraints,
-            initial_guess=self.initial_guess_of(self.times[1:], N + 1), unravel=self.unravel,
-            jacobian_sparsity=sparsity(_blocks(N, self.n, self.m, self.fixed, self.system.n_path, self.T_lo.size)),
-            name=self.name(f"N={N}"),
-        )
+        return self.collocation_nlp()
 
-
-def _blocks(N: int, n: int, m: int, fixed: np.ndarray, n_path: int, n_T: int) -> list:
-    """The Jacobian's structurally non-zero blocks: defects, final values, path rows (``n_T``: 1 with a free final
-    time, whose column every row has, else 0)."""
-    nX, nU = N * n, (N + 1) * m
-    T_col = np.arange(nX + nU, nX + nU + n_T)  # empty for a fixed T
-    blocks = collocation_blocks(N, n, m, fixed, T_col)
-    for k in range(N + 1):
-        rows = N * n + fixed.size + k * n_path + np.arange(n_path)
-        x_k = [np.arange((k - 1) * n, k * n)] if k > 0 else []
-        blocks.append((rows, np.concatenate(x_k + [nX + np.arange(k * m, (k + 1) * m), T_col]), False))
-    return blocks

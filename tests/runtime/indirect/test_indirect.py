@@ -65,7 +65,8 @@ def test_solve_fn_is_the_vmappable_pure_sweep():
     assert z0.shape == (51, 1) and z0.dtype == np.float64
     out = sweep.solve_fn(system)(data, z0)
     assert Status(int(out.status)) is STATUS[SweepCode(int(out.solver_code))] is Status.CONVERGED
-    np.testing.assert_array_equal(np.asarray(out.controls), np.asarray(sweep.run(system, data).controls))
+    default = sweep.solve_fn(system)(data, sweep.start(system, data))
+    np.testing.assert_array_equal(np.asarray(out.controls), np.asarray(default.controls))
     # A start of the right shape is taken as the initial controls; another shape is refused.
     warm = sweep.solve(system, params={"q": 2.0}, z0=np.asarray(out.controls))
     assert warm.converged and warm.iterations <= 1, warm.message
