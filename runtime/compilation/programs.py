@@ -11,10 +11,8 @@ depends on (a spec-generated system's module source, a transcription's configura
 :func:`describe` and :func:`system_key`). Anything else, such as a learned model with its weights in the closure, has
 no key and is traced as before. The file name also hashes this package's own source, the versions of JAX and the
 libraries traced through, the float width and the device: a change to any of them is a different program. A program
-that cannot be exported (a host callback, an unregistered pytree) is lowered the usual way and not stored.
-
-The store lives in ``<compilation cache folder>/programs`` and is turned on and off with the compilation cache
-(:func:`.jax_cache.enable_compilation_cache`); files are written atomically and safe to delete.
+that cannot be exported (a host callback, an unregistered pytree) is lowered the usual way and not stored. The store
+(``<compilation cache folder>/programs``, see :mod:`.jax_cache`) is written atomically and safe to delete.
 """
 
 from __future__ import annotations

@@ -11,10 +11,7 @@ products come from forward-mode differentiation through both rollouts, the linea
 (Armijo). u* is clipped, so F is only piecewise smooth: this is a semismooth Newton method (Ulbrich 2011), fast once
 the active set is right.
 
-The sweep globalises, Newton converges (:func:`sweep_then_newton`): relaxed sweeps until the relative change is below
-``newton_switch``, then Newton; if Newton stalls, the sweep continues from Newton's best point to a 10 times
-smaller switch and Newton is tried again (``_NEWTON_ATTEMPTS`` in all). The sweep phase runs at theta = 0 (the
-free-final-state problem), whose solution is Newton's starting point.
+The sweep globalises, Newton converges (:func:`sweep_then_newton`).
 """
 
 from __future__ import annotations
@@ -114,7 +111,9 @@ def newton(p: Problem, cfg: "ForwardBackwardSweep", z: Any) -> tuple[Any, Any, A
 
 
 def sweep_then_newton(p: Problem, cfg: "ForwardBackwardSweep", u: Any, omega: Any) -> tuple[Any, ...]:
-    """Relaxed sweeps from the controls u, then Newton, up to ``_NEWTON_ATTEMPTS`` times (see the module docstring).
+    """Relaxed sweeps from the controls u until the relative change is below ``newton_switch``, then Newton; if Newton
+    stalls, the sweep continues from Newton's best point to a 10 times smaller switch and Newton is tried again
+    (``_NEWTON_ATTEMPTS`` in all). The sweeps run at theta = 0 (the free-final-state problem).
 
     Returns:
         (u, theta, omega, sweeps, newton_steps, reached): ``reached`` is True when the last attempt's sweep got below

@@ -11,10 +11,8 @@ controls. The first Jacobian is by forward differences (one extra sweep per fixe
 
     J <- J + (r_new - r - J d) d^T / (d^T d),
 
-so with one fixed state this is the secant method of Lenhart & Workman's Lab 13. The iteration starts from
-theta = 0 and stops early if the sweep at the current theta does not converge (the residuals of an unconverged
-sweep are noise). A bang-bang u* is piecewise constant in lambda, so F has no useful derivative for Newton; this
-iteration needs none.
+so with one fixed state this is the secant method of Lenhart & Workman's Lab 13. It starts from theta = 0 and stops
+early if the sweep at the current theta does not converge (the residuals of an unconverged sweep are noise).
 """
 
 from __future__ import annotations

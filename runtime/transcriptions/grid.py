@@ -1,13 +1,9 @@
 """Non-uniform grids: the ``grid`` option of every direct transcription and its node times.
 
-A grid is a tuple of normalised node positions 0 = s_0 < s_1 < ... < s_N = 1; on a horizon T the nodes are
-t_k = T s_k and the steps h_k = t_{k+1} - t_k. ``grid=None`` is the uniform grid t_k = k T / N, computed exactly as
-before grids existed (``np.linspace`` and the scalar step T / N), so a transcription without a grid builds bit for
-bit the NLP it always did. Node times are computed here and only here (:func:`node_times`), so that a free final
-time (times scaled to [0, 1]) has one place to change.
-
-A tuple, not an array: transcriptions are frozen, hashable dataclasses used as static ``jax.jit`` arguments and as
-keys of the NLP cache, so their grid must hash by value.
+A grid is a tuple of normalised node positions 0 = s_0 < s_1 < ... < s_N = 1 (a tuple: transcriptions are hashable,
+static ``jax.jit`` arguments and keys of the NLP cache); on a horizon T the nodes are t_k = T s_k. ``grid=None`` is
+the uniform grid t_k = k T / N, computed exactly as before grids existed (``np.linspace`` and the scalar step T / N),
+so a transcription without a grid builds bit for bit the NLP it always did.
 """
 
 from __future__ import annotations

@@ -58,18 +58,12 @@ def staged_derivatives(
     ``objective_weight`` (IPOPT's ``obj_factor``: 0 in its restoration phase).
 
     Args:
-        step: ``(k, y_k, v_k) -> y_{k+1}``, traceable in ``k`` (an int32 scalar).
-        terminal: ``y_N -> (F, c)``, F a scalar and c a vector (possibly empty).
-        y0: the initial state (not a decision).
-        z: the decisions, shape (n_z,); every one must be read by some step (nothing else reaches ``terminal``).
+        step: ``(k, y_k, v_k) -> y_{k+1}``, traceable in ``k`` (an int32 scalar); y0 the initial state.
+        terminal: ``y_N -> (F, c)``, F a scalar and c a vector (possibly empty), lam its multipliers.
+        z: the decisions (n_z,); every one must be read by some step (nothing else reaches ``terminal``).
         index: (N, q) integer NumPy array (static): step k reads ``v_k = z[index[k]]``; steps may share entries.
-        lam: multipliers of ``c``, shape like c.
-        objective_weight: the objective's weight in the Lagrangian (1 by default).
         hessian: True, or a traced boolean: where false the Hessian is zeros and its second-order part is skipped
             (a ``lax.cond``), so that one compiled program serves first-order calls at first-order cost (IPOPT's).
-
-    Returns:
-        F, c, the gradient (n_z,), the Jacobian (m, n_z) and the symmetric Hessian (n_z, n_z).
     """
     index = np.asarray(index)  # static: its gathers and scatters are strided slices (smallops)
     n_z, n_y = z.shape[0], y0.shape[0]
