@@ -23,8 +23,8 @@ _SOURCES = {
     **dict.fromkeys(("METHODS", "SolveConfig"), "solve_config"),
     **dict.fromkeys(("SLSQP", "Extragradient", "InteriorPoint", "Ipopt"), "solvers"),
     **dict.fromkeys(("OptimalControlUnavailable", "System", "UnsupportedFeature"), "system"),
-    **dict.fromkeys(("ForwardBackwardSweep", "HermiteSimpson", "MultipleShooting", "SingleShooting", "Trapezoidal"),
-                    "transcriptions"),
+    **dict.fromkeys(("HermiteSimpson", "MultipleShooting", "SingleShooting", "Trapezoidal"), "transcriptions"),
+    "ForwardBackwardSweep": "indirect",
 }
 
 __all__ = [
@@ -35,6 +35,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__ imports each name on first use
+    from .indirect import ForwardBackwardSweep
     from .integrators import RK4, Adaptive, Euler, Heun, Midpoint
     from .loader import load
     from .simulate import simulate
@@ -42,7 +43,7 @@ if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__
     from .solve_config import METHODS, SolveConfig
     from .solvers import SLSQP, Extragradient, InteriorPoint, Ipopt
     from .system import OptimalControlUnavailable, System, UnsupportedFeature
-    from .transcriptions import ForwardBackwardSweep, HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
+    from .transcriptions import HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
 
 
 def __getattr__(name: str):
