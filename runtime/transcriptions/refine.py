@@ -157,6 +157,7 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
     """
     tr, history, tol = transcription, [], config.tolerance
     parent_errors = pieces = coarse_cost = last = None
+    previous_gap = math.inf
     S = transcription.steps_per_mesh_interval
     for level in range(config.max_refinements + 1):
         start = time.perf_counter()
@@ -183,8 +184,15 @@ def solve_refined(system: System, transcription: AbstractTranscription, solver: 
                                  f"moved by {change:.2e} from the grid of half as many")
         elif level == config.max_refinements:
             reason = f"max_refinements = {config.max_refinements} reached" + _shortfall(sol, change)
+        elif sol.agreement is False and math.isfinite(previous_gap) and not sol.agreement_gap < previous_gap:
+            # Alp rider: y3, y4 have the eigenvalue +2, so re-simulating open-loop controls over T = 20 amplifies any
+            # difference by e^40; its gap stays near 1e23 on every grid. Refining cannot close such a gap.
+            reason = (f"the re-simulated answer does not approach the discretised one as the grid is refined (gap "
+                      f"{sol.agreement_gap:.2e} after {previous_gap:.2e}): re-simulating the controls open-loop is "
+                      f"ill-conditioned here (an unstable system amplifies any difference), which no grid can fix")
         else:
             last = sol
+            previous_gap = sol.agreement_gap if sol.agreement is False else math.inf
             mesh_errors = np.asarray(sol.interval_errors).reshape(-1, S).max(axis=1)
             counts = _next_counts(sol, mesh_errors, tol, tr.order, config.max_split, parent_errors, pieces)
             positions = refine_positions(tr.positions()[::S], counts, S)
