@@ -129,8 +129,9 @@ class Solution:
         return (f"the discretised and re-simulated answers disagree by {self.agreement_gap:.2e} (relative), more "
                 f"than the agreement tolerance {self.agreement_tolerance:.3g}: cost {self.cost:.8g} vs re-simulated "
                 f"{self.simulated_cost:.8g}" + (f", final-value defect {finals}" if finals else "") +
-                "; the grid is too coarse for the dynamics (or the controls ring): use more --intervals, a "
-                "higher-order method, or --tolerance to refine the mesh")
+                "; the grid is too coarse for the dynamics (or the controls ring, or an unstable system amplifies "
+                "any difference open-loop): use more --intervals, a higher-order method, or --tolerance to refine "
+                "the mesh")
 
     def record(self) -> dict:
         """A JSON-ready dict (no arrays), one record of the bench's JSON."""
