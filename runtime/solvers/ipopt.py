@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..compilation import CompiledFunction, compile_many, program_key
+from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import from_ipopt
 from .base import (
@@ -114,6 +115,7 @@ class Ipopt(AbstractNLPSolver):
         }
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        require_float64("Ipopt.solve")
         exact = self.hessian == "exact"
         fns = cached(nlp, ("ipopt", exact),
                      lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity, exact))

@@ -11,6 +11,7 @@ import numpy as np
 import scipy.optimize
 
 from ..compilation import CompiledFunction
+from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import from_scipy_slsqp
 from .base import (
@@ -67,6 +68,7 @@ class SLSQP(AbstractNLPSolver):
             raise ValueError("SLSQP: max_iter must be at least 1")
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        require_float64("SLSQP.solve")
         fns = cached(nlp, "slsqp", lambda: _Derivatives(ScaledProblem.from_nlp(nlp)))
         problem = fns.problem
         data = canonical_data(data)
