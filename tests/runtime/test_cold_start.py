@@ -71,6 +71,21 @@ def test_main_builds_the_named_commands_parser_any_case(capsys):
     assert "--transcription" in capsys.readouterr().out
 
 
+def test_solve_and_bench_compile_quick_by_default_and_restore_the_options():
+    from myriad.runtime.compilation import programs
+
+    for command in ("solve", "bench"):
+        sub = cli._parser(command)._subparsers._group_actions[0].choices[command]
+        assert next(a for a in sub._actions if a.dest == "compile").default == "quick"
+    previous = programs.compiler_options()
+    with cli._compiler_options("quick"):
+        assert programs.compiler_options() == programs.QUICK
+        with cli._compiler_options("full"):
+            assert programs.compiler_options() is None
+        assert programs.compiler_options() == programs.QUICK
+    assert programs.compiler_options() == previous
+
+
 def test_the_public_names_import_and_the_functions_win_over_their_modules():
     """``solve`` and ``simulate`` are also submodules: importing those first must not hide the functions."""
     seen = _fresh("""
