@@ -7,7 +7,6 @@ import functools
 import time
 from typing import Any, ClassVar, Literal, Mapping, final
 
-import cyipopt
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -116,6 +115,7 @@ class Ipopt(AbstractNLPSolver):
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
         require_float64("Ipopt.solve")
+        import cyipopt  # here, not at the top: its import costs every solve by another solver about 0.35 s
         exact = self.hessian == "exact"
         fns = cached(nlp, ("ipopt", exact),
                      lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity, exact))
