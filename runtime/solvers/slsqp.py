@@ -8,7 +8,6 @@ from typing import Any, ClassVar, final
 
 import jax
 import numpy as np
-import scipy.optimize
 
 from ..compilation import CompiledFunction
 from ..data import require_float64
@@ -69,6 +68,7 @@ class SLSQP(AbstractNLPSolver):
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
         require_float64("SLSQP.solve")
+        import scipy.optimize  # here, not at the top: its import costs every other solver's first solve about 0.15 s
         fns = cached(nlp, "slsqp", lambda: _Derivatives(ScaledProblem.from_nlp(nlp)))
         problem = fns.problem
         data = canonical_data(data)
