@@ -223,3 +223,25 @@ def test_refinement_stops_where_the_re_simulation_cannot_agree(monkeypatch):
     r = sol.refinement
     assert not r["met"] and "does not approach the discretised one" in r["reason"], r["reason"]
     assert [h["gap"] for h in r["history"]][-2:] == [1e19, 1e19] and len(r["history"]) <= 3
+
+
+def test_the_cost_must_converge_relative_to_itself_not_to_one():
+    # x' = u, cost q x^2 + u^2 with q = 1e-2: J* = sqrt(q) tanh(sqrt(q)) = 9.967e-3 (Riccati P = sqrt(q) tanh(sqrt(q)
+    # (T - t))). Relative to max(1, |J|) a halving that moves this cost by 1e-5 of itself passed a 1e-6 tolerance
+    # (COPS' catalyst mixing, |J| = 0.048, stopped 1.3e-5 off); relative to max(|J|, 1e-3) the cost's own digits
+    # must settle, so refinement goes on until it is within the tolerance of J*.
+    from myriad.runtime.transcriptions.refine import COST_FLOOR
+
+    from .._problems import ScalarLQ
+
+    q, tol = 1e-2, 1e-6
+    exact = math.sqrt(q) * math.tanh(math.sqrt(q))
+    sol = solve(ScalarLQ(), Trapezoidal(intervals=8), params={"q": q, "b": 1.0}, tolerance=tol)
+    r = sol.refinement
+    assert r["met"] and sol.accurate, r["reason"]
+    assert abs(sol.cost - exact) <= tol * abs(exact)
+    last, coarse = r["history"][-1], r["history"][-2]
+    assert last["change"] == pytest.approx(abs(last["cost"] - coarse["cost"]) / max(abs(last["cost"]), COST_FLOOR))
+    # The old scale would have stopped on a grid whose cost was still more than the tolerance off, relative to itself.
+    stopped_early = [h for h in r["history"][:-1] if abs(h["change"]) * abs(h["cost"]) <= tol]
+    assert stopped_early and abs(stopped_early[0]["cost"] - exact) > tol * abs(exact)
