@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from ..learn.dataset import Dataset, Sampling, Trajectories, make_dataset
 from ..learn.evaluate import Evaluation, evaluate
 from ..learn.loop import Stop
 from ..learn.models import Parametric, make_model, model_class, network_error
+from ..learn.progress import LineProgressMeter, NoProgressMeter, progress_meter
 from ..learn.reaim import Reaim, observe, reaim
 from ..loader import load
 from ..solve import solve
@@ -203,23 +205,71 @@ def _merge(a: Dataset, b: Dataset) -> Dataset:
                                test=_cat(a.test, b.test))
 
 
+def _least_squares_fit(model, dataset: Dataset, theta, noise: float):
+    """Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local minimum
+    like Mountain Car's), then single shooting from there (honest standard errors on noisy data)."""
+    ms = least_squares(model, dataset, theta0=theta, method="multiple_shooting")
+    start = ms.theta if all(math.isfinite(v) for v in ms.theta.values()) else theta
+    ls = least_squares(model, dataset, theta0=start)
+    # Noise-free, the multiple-shooting fit is exact and may stand in for a refinement that did not converge; on noisy
+    # data its standard errors are overconfident (each window starts at a noisy observation), so the refinement's
+    # failure stands.
+    if not ls.converged and ms.converged and noise == 0:
+        ls = dataclasses.replace(ms, message=f"{ms.message} (multiple shooting; the single-shooting refinement did "
+                                             f"not converge: {ls.message})")
+    return ls
+
+
+def _phase_meter(progress: bool | None, name: str, config: SysidConfig) -> NoProgressMeter:
+    """A progress line as each phase of the experiment begins (sampling, the true optimum, each round's fit and plan,
+    the re-aim), so that a run without a terminal says what it is doing before the fit's first epoch line: sampling
+    compiles the adaptive integrator and the first epoch the training step, minutes of silence otherwise. A line per
+    phase, not per 10 s as the epochs' meter: the phases are few and long. On a terminal a bar of phases; False:
+    nothing."""
+    total, desc = 2 + config.rounds + (config.reaim > 0), f"sysid {name}"
+    if progress is None and not sys.stderr.isatty():
+        return LineProgressMeter(total, 0, desc, "phase", seconds=0.0)
+    return progress_meter(progress, total, desc=desc, unit="phase")
+
+
+def _fit_words(config: SysidConfig, r: int) -> str:
+    """What round ``r`` does, for its progress line."""
+    settings = config.fit if r == 0 or config.refit is None else config.refit
+    how = ("by least squares" if config.method == "least_squares" else
+           f"by Adam, {settings.epochs} epochs" + (" (the first compiles the training step)" if r == 0 else ""))
+    again = "sampling around the plan, " if r else ""
+    return f"round {r + 1}/{config.rounds}: {again}fitting {how}, then planning on the model"
+
+
 def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidConfig(), *,
               checkpoint_dir: str | os.PathLike | None = None, resume: bool = False, progress: bool | None = None,
               transcription=None, solver=None) -> SysidReport:
     """Sample, fit, plan and judge (see the module docstring); ``transcription`` and ``solver`` set the planning
-    setting (default: the published one)."""
+    setting (default: the published one); ``progress`` as :func:`~myriad.runtime.learn.progress.progress_meter`, for
+    the phases (:func:`_phase_meter`) and each fit's epochs."""
     system = system if isinstance(system, System) else load(system)
     # A parametric model refuses a system without learnable parameters, before any work.
     model = make_model(config.model, system, hidden=tuple(config.hidden), activation=config.activation)
+    with _phase_meter(progress, system.name, config) as phases:
+        return _experiment(system, model, config, phases, checkpoint_dir=checkpoint_dir, resume=resume,
+                           progress=progress, transcription=transcription, solver=solver)
+
+
+def _experiment(system: System, model, config: SysidConfig, phases: NoProgressMeter, *, checkpoint_dir, resume,
+                progress, transcription, solver) -> SysidReport:
+    """:func:`run_sysid`'s work, each phase announced on ``phases``."""
     sampling = dataclasses.replace(config.sampling, noise=config.noise)
     held = max(3, config.trajectories // 3)
     sizes = (config.trajectories, held, held)
+    phases.update(f"sampling {config.trajectories} + {held} + {held} trajectories (train, validation, test)")
     dataset = make_dataset(system, sampling, trajectories=sizes, seed=config.seed)
+    phases.update("solving the true optimum (the plan's yardstick)")
     optimum = solve(system, transcription, solver, resimulate=False)
     theta, history, seconds = None, [], 0.0
     standard_errors, unidentifiable, status, message = {}, (), "converged", ""
     evaluation, anchors, polishes = None, None, []
     for r in range(config.rounds):
+        phases.update(_fit_words(config, r))
         if r:
             around = np.asarray(evaluation.plan.controls)
             if around.shape[0] != dataset.intervals + 1:
@@ -233,17 +283,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
                 anchors = anchor if anchors is None else _cat(anchors, anchor)
         t0 = time.perf_counter()
         if config.method == "least_squares":
-            # Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local
-            # minimum like Mountain Car's), then single shooting from there (honest standard errors on noisy data).
-            ms = least_squares(model, dataset, theta0=theta, method="multiple_shooting")
-            start = ms.theta if all(math.isfinite(v) for v in ms.theta.values()) else theta
-            ls = least_squares(model, dataset, theta0=start)
-            # Noise-free, the multiple-shooting fit is exact and may stand in for a refinement that did not converge;
-            # on noisy data its standard errors are overconfident (each window starts at a noisy observation), so
-            # the refinement's failure stands.
-            if not ls.converged and ms.converged and config.noise == 0:
-                ls = dataclasses.replace(ms, message=f"{ms.message} (multiple shooting; the single-shooting "
-                                                     f"refinement did not converge: {ls.message})")
+            ls = _least_squares_fit(model, dataset, theta, config.noise)
             theta = {k: jax.numpy.asarray(v) for k, v in ls.theta.items()}
             standard_errors = {k: float(v) for k, v in ls.standard_errors.items()}
             unidentifiable, status = tuple(ls.unidentifiable), "converged" if ls.converged else str(ls.status)
@@ -264,6 +304,7 @@ def run_sysid(system: System | str | os.PathLike, config: SysidConfig = SysidCon
         evaluation = evaluate(model, theta, transcription=transcription, solver=solver, optimum=optimum)
     aimed = None
     if config.reaim and evaluation.plan.converged:
+        phases.update(f"re-aiming the plan at the required final values ({config.reaim} runs of the true system)")
         t0 = time.perf_counter()
         aimed = reaim(model, theta, evaluation.plan, sampling, iterations=config.reaim, seed=config.seed + 2 * 10**6,
                       transcription=transcription, solver=solver)
