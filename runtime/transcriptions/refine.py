@@ -36,10 +36,11 @@ so the finer grid's is below it (by 2^p asymptotically).
 The cost's change is judged relative to the cost itself, |J_h - J_2h| / max(|J|, COST_FLOOR) with COST_FLOOR = 1e-3:
 an ODE solver's rtol with an atol, so that a cost of zero (or one that crosses it) can still converge, in absolute
 terms, to 1e-3 tol. This is stricter than max(1, |J|) on purpose: a tolerance asked of a cost is asked of its
-digits, whatever its units. With max(1, |J|) a cost of size 0.048 (COPS' catalyst mixing, J* = -0.0480556) was
-allowed 2e-5 of its own size at tol = 1e-6, and refinement reported "met" 1.3e-5 off the optimum. The agreement
-verdict of the re-simulation (:mod:`~myriad.runtime.solution`, ``agreement_tolerance``) keeps max(1, |J|): it is a
-warning that the two answers disagree, not the cost's accuracy, and the halving criterion bounds the latter.
+digits, whatever its units. With max(1, |J|) a cost of size 0.048 (COPS' catalyst mixing, trapezoidal from 400
+intervals) moved by 1.7e-5 of itself on a halving to 812 intervals and was reported "met" at 1e-6, 1.4e-5 off its
+optimum; relative to |J| it halves on and reports the limit that stops it (docs/notes/2026-12-06-peer-tolerance.md).
+The agreement verdict of the re-simulation (:mod:`~myriad.runtime.solution`, ``agreement_tolerance``) keeps
+max(1, |J|): it is a warning that the two answers disagree, not the cost's accuracy, which the halving bounds.
 
 Stopping: all three meet the tolerance (``met``); or a limit is reached, which is reported and never called a
 success: ``max_refinements`` levels after the first solve, a next grid above ``max_intervals``, an NLP that did not
