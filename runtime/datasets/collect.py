@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -138,6 +140,14 @@ def _rollouts(env: Env, actions: Any, data: ProblemData):
     return jax.vmap(one)(actions, data)
 
 
+def _target_name(target: Any, system: System) -> str | None:
+    """What ``load`` remakes the system from: a spec file's absolute path, a name, or None for an object."""
+    if isinstance(target, System):
+        return None
+    path = Path(os.fspath(target))
+    return str(path.resolve()) if path.is_file() else os.fspath(target)
+
+
 def collect(target: System | str, policy: str = "optimal", episodes: int = 10, seed: int = 0,
             options: EnvOptions | None = None, perturb: Perturbation | None = None,
             settings: PolicySettings | None = None) -> Episodes:
@@ -168,7 +178,7 @@ def collect(target: System | str, policy: str = "optimal", episodes: int = 10, s
     rewards = np.asarray(rewards, np.float64)
     info = {"policy": policy, "settings": dataclasses.asdict(settings), "seed": int(seed), "episodes": int(episodes),
             "perturb": dataclasses.asdict(perturb), "options": options_record(env.options), "system": system.name,
-            "spec_sha256": system.spec_sha256, **policy_info}
+            "spec_sha256": system.spec_sha256, "target": _target_name(target, system), **policy_info}
     return Episodes(observations=np.asarray(obs, np.float64), actions=np.asarray(actions, np.float64),
                     rewards=rewards, terminations=np.asarray(term, bool), truncations=np.asarray(trunc, bool),
                     states=np.asarray(states, np.float64), returns=rewards.sum(axis=1),
