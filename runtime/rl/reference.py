@@ -166,6 +166,7 @@ def reference_record(target: System | str | os.PathLike, options: EnvOptions | N
         ValueError: a control without finite bounds and no ``action_bound`` (a random policy needs bounds).
     """
     env = reference_env(target, options)
+    env.require_finite_controls("a uniformly random policy has no distribution to draw from")
     shipped = _shipped(env)
     if shipped is not None:
         return shipped
