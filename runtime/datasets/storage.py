@@ -26,7 +26,7 @@ from ..loader import load
 from ..system import System
 from .collect import Episodes
 
-__all__ = ["FORMAT", "FORMATS", "dataset_id", "provenance", "write_dataset", "load_dataset"]
+__all__ = ["FORMAT", "FORMATS", "dataset_id", "dataset_path", "provenance", "write_dataset", "load_dataset"]
 
 FORMAT = 1  # of our provenance record: bump with a change of layout
 FORMATS = ("minari", "npz")
@@ -39,9 +39,16 @@ def _env_version() -> int:
     return ENV_VERSION
 
 
-def dataset_id(episodes: Episodes, name: str) -> str:
-    """Minari's id of the dataset: ``myriad/<system>/<name>-v<env version>`` (namespace, environment, dataset)."""
-    return f"myriad/{episodes.info['system']}/{name}-v{_env_version()}"
+def dataset_id(system: str, name: str) -> str:
+    """Minari's id of a dataset: ``myriad/<system>/<name>-v<env version>`` (namespace, environment, dataset)."""
+    return f"myriad/{system}/{name}-v{_env_version()}"
+
+
+def dataset_path(out: str | os.PathLike, system: str, name: str, fmt: str = "minari") -> Path:
+    """Where :func:`write_dataset` puts a dataset of ``system`` named ``name`` under ``out``."""
+    if fmt == "npz":
+        return Path(out) / f"{system}-{name}-v{_env_version()}.npz"
+    return Path(out) / dataset_id(system, name)
 
 
 def _spec_text(system: System) -> str | None:
@@ -140,7 +147,7 @@ def _buffers(episodes: Episodes) -> list:
 def _write_minari(episodes: Episodes, system: System, out: Path, name: str, target: Any) -> Path:
     import minari
 
-    ident = dataset_id(episodes, name)
+    ident = dataset_id(system.name, name)
     final = out / ident
     options = episodes.info["options"]
     spec = _gym_spec(system, target, options)
@@ -185,9 +192,7 @@ def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def _write_npz(episodes: Episodes, system: System, out: Path, name: str, target: Any) -> Path:
-    final = out / f"{system.name}-{name}-v{_env_version()}.npz"
-    if final.exists():
-        raise FileExistsError(f"{final} exists; choose another --out or --name")
+    final = dataset_path(out, system.name, name, "npz")
     spec = _gym_spec(system, target, episodes.info["options"])
     meta = {**provenance(episodes, system, spec.id if spec is not None else None), **_reference(system, episodes)}
     arrays = {k: getattr(episodes, k) for k in _ARRAYS}
@@ -219,11 +224,9 @@ def write_dataset(episodes: Episodes, out: str | os.PathLike, name: str | None =
                          f"the target is {system.spec_sha256[:12]}")
     name = episodes.info["policy"] if name is None else name
     out = Path(out)
-    if fmt == "npz":
-        return _write_npz(episodes, system, out, name, target)
-    if (out / dataset_id(episodes, name)).exists():
-        raise FileExistsError(f"{out / dataset_id(episodes, name)} exists; choose another --out or --name")
-    return _write_minari(episodes, system, out, name, target)
+    if dataset_path(out, system.name, name, fmt).exists():
+        raise FileExistsError(f"{dataset_path(out, system.name, name, fmt)} exists; choose another --out or --name")
+    return (_write_npz if fmt == "npz" else _write_minari)(episodes, system, out, name, target)
 
 
 def _check(meta: dict[str, Any], path: Path, system: System | None) -> None:

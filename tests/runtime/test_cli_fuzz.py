@@ -34,6 +34,7 @@ _WORK = {
     "e2e": "myriad.runtime.e2e.train.run_e2e",
     "sweep": "myriad.runtime.sweep.run.run_sweep",
     "rl-reference": "myriad.runtime.rl.reference.run",
+    "dataset": "myriad.runtime.datasets.run.run_dataset",
 }
 # A valid value of each positional, by its metavar (a system with learnable parameters: sysid and e2e need one).
 _POSITIONAL = {"NAME|PATH": "van_der_pol"}
