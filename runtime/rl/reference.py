@@ -151,6 +151,18 @@ def _shipped(env: Env) -> dict[str, Any] | None:
     return None
 
 
+def _cached(path: Path, env: Env) -> dict[str, Any] | None:
+    """The record at ``path`` if it is there, parses and is this spec's in these settings (else None: computed
+    again and overwritten; the writes are atomic, so only a hand-edited or foreign file fails this)."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    ok = isinstance(record, dict) and record.get("spec_sha256") == env.system.spec_sha256 \
+        and record.get("env") == env_settings(env)
+    return record if ok else None
+
+
 def reference_record(target: System | str | os.PathLike, options: EnvOptions | None = None, *,
                      cache_dir: str | os.PathLike | None = None) -> dict[str, Any]:
     """The reference record of any system (a ``System``, a shipped name, ``peers/<name>`` or a spec path) in
@@ -174,9 +186,8 @@ def reference_record(target: System | str | os.PathLike, options: EnvOptions | N
     if key in _memo:
         return _memo[key]
     path = Path(cache_dir if cache_dir is not None else reference_cache_dir()) / f"{key}.json"
-    if path.is_file():
-        record = json.loads(path.read_text(encoding="utf-8"))
-    else:
+    record = _cached(path, env)
+    if record is None:
         from ..atomic import atomic_write_text
 
         record = compute(env.system, options)

@@ -2,6 +2,7 @@
 the env's optimum certified by two methods, checked against an independent fine-grid solve of the continuous
 problem and by replaying it in the env; the cache and its key; the normalised score's two ends."""
 
+import json
 from pathlib import Path
 
 import jax
@@ -59,7 +60,9 @@ def test_the_cache_is_written_once_and_then_read_without_solving(tmp_path, monke
 
     def counting_compute(target, options=None):  # the record's shape; the solve itself is the slow tests'
         calls.append(options)
-        return {"system": target.name, "optimal": {"cost": -2.0}, "random": {"cost": 3.0}}
+        env = reference.reference_env(target, options)
+        return {"system": target.name, "spec_sha256": target.spec_sha256, "env": reference.env_settings(env),
+                "optimal": {"cost": -2.0}, "random": {"cost": 3.0}}
 
     monkeypatch.setattr(reference, "compute", counting_compute)
     first = reference_record(spec, cache_dir=tmp_path / "cache")
@@ -69,6 +72,12 @@ def test_the_cache_is_written_once_and_then_read_without_solving(tmp_path, monke
     reference_record(spec, EnvOptions(steps=50), cache_dir=tmp_path / "cache")
     assert len(calls) == 2 and calls[1].steps == 50
     assert len(list((tmp_path / "cache").iterdir())) == 2  # no temporary file left behind (atomic writes)
+    # A file at the key that is not this spec's record (hand-edited, truncated) is computed again and replaced.
+    path = tmp_path / "cache" / f"{reference.cache_key(spec)}.json"
+    path.write_text('{"spec_sha256": "0"}')
+    monkeypatch.setattr(reference, "_memo", {})
+    assert reference_record(spec, cache_dir=tmp_path / "cache") == first and len(calls) == 3
+    assert json.loads(path.read_text()) == first
 
 
 def test_a_shipped_system_in_the_default_env_reads_the_shipped_file(monkeypatch):
