@@ -61,7 +61,8 @@ _SOLVE_METAVARS = {"intervals": "N", "tolerance": "TOL", "max_refinements": "K",
 # optax, optimistix, gymnasium) cost ~0.7 s; `myriad --help` and the other commands build them all.
 _OWN_PARSER_ONLY = ("solve", "bench")
 # The other commands: their parser (add_parser) and run() live in a package's cli.py.
-_PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl", "dataset": "datasets"}
+_PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl", "dataset": "datasets",
+                     "imitate": "imitation"}
 
 
 def _parser(command: str | None = None):

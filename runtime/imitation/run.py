@@ -91,7 +91,8 @@ class ImitationReport:
     status: Stop
     message: str
     scores: dict
-    history: list
+    fit_history: list  # the behaviour-cloning fit's (epoch, training loss, held-out loss)
+    history: list  # DAgger's (iteration, held-out loss, nominal env cost), iteration 0 the behaviour-cloning start
     seconds: dict
     counts: dict
 
@@ -103,7 +104,8 @@ class ImitationReport:
         return {"system": self.system.name, "spec_sha256": self.system.spec_sha256, "method": self.config.method,
                 "demos": self.config.demos, "seed": self.config.seed, "status": self.status.value,
                 "message": self.message, **self.scores, "seconds": self.seconds, **self.counts,
-                "history": [list(row) for row in self.history], "config": to_json(self.config)}
+                "fit_epochs": len(self.fit_history), "dagger_history": [list(row) for row in self.history],
+                "config": to_json(self.config)}
 
 
 def demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None = None):
@@ -160,16 +162,16 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
     bc = fit(policy, policy.init(jax.random.PRNGKey(config.seed)), train_pairs, held_out, config.fit,
              checkpoint_dir=sub("bc"), resume=resume, progress=progress, desc=f"bc {system.name}")
     seconds["bc"] = time.perf_counter() - t
-    net, status, message, history = bc.net, bc.stop, bc.message, [("bc", *row) for row in bc.history[-1:]]
+    net, status, message, history = bc.net, bc.stop, bc.message, []
     if config.method == "dagger" and bc.stop.success:
         t = time.perf_counter()
         run = dagger(env, policy, bc.net, train_pairs, held_out, Expert(env), config.dagger, config.fit,
                      seed=config.seed, checkpoint_dir=sub("dagger"), resume=resume, progress=progress)
         seconds["dagger"] = time.perf_counter() - t
         net, status, message = run.net, run.stop, run.message
-        history += [("dagger", *row) for row in run.history]
+        history = run.history
         counts = {"expert_labels": run.labels, "expert_failures": run.failures}
     t = time.perf_counter()
     scores = score(env, policy, net, mismatch=config.mismatch, noise=config.noise, episodes=config.score_episodes)
     seconds["score"] = time.perf_counter() - t
-    return ImitationReport(system, config, policy, net, status, message, scores, history, seconds, counts)
+    return ImitationReport(system, config, policy, net, status, message, scores, bc.history, history, seconds, counts)

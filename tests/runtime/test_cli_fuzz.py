@@ -35,6 +35,7 @@ _WORK = {
     "sweep": "myriad.runtime.sweep.run.run_sweep",
     "rl-reference": "myriad.runtime.rl.reference.run",
     "dataset": "myriad.runtime.datasets.run.run_dataset",
+    "imitate": "myriad.runtime.imitation.run.run_imitation",
 }
 # A valid value of each positional, by its metavar (a system with learnable parameters: sysid and e2e need one).
 _POSITIONAL = {"NAME|PATH": "van_der_pol"}

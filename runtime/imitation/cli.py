@@ -1,0 +1,85 @@
+"""``myriad imitate``: behaviour cloning or DAgger from optimal demonstrations, scored in the env.
+
+Arguments are checked before any work (exit 2); the JSON record and the plots are written atomically; exit 1 when
+the training failed (a non-finite loss: the reason on stderr and in the record's ``status`` and ``message``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .._command_args import add_training_outputs, first_error, usage
+
+__all__ = ["add_parser", "run"]
+
+_METAVARS = {"demos": "N", "seed": "S", "start_noise": "F", "held_out": "F", "mismatch": "F", "noise": "F",
+             "score_episodes": "N"}
+
+
+def add_parser(sub) -> None:
+    from ..configs import add_arguments
+    from .run import ImitateConfig
+
+    s = sub.add_parser("imitate", help="imitation baselines: behaviour cloning or DAgger from optimal demonstrations",
+                       epilog="exit 0: trained and scored; 1: the training failed (reason on stderr and in the "
+                              "record); 2: a usage error, before any work")
+    s.add_argument("system", metavar="NAME|PATH")
+    # The flags are ImitateConfig's fields (--fit and --dagger take JSON; --set fit.epochs=... reaches a nested one).
+    add_arguments(s, ImitateConfig, metavars=_METAVARS)
+    s.add_argument("--dataset", metavar="PATH", default=None,
+                   help="demonstrations from a dataset `myriad dataset` wrote (its Minari folder or .npz) instead of "
+                        "collecting --demos optimal episodes")
+    add_training_outputs(s, "the fit's loss curve and the policy's episode beside the optimum (PNG)")
+
+
+def run(args) -> int:
+    from ..configs import from_args, usage_message
+    from .run import ImitateConfig
+
+    if error := first_error(args):
+        return usage("imitate", error)
+    try:
+        config = from_args(ImitateConfig, args)
+    except ValueError as exc:
+        return usage("imitate", usage_message(exc, ImitateConfig))
+    if args.dataset is not None and not Path(args.dataset).exists():
+        return usage("imitate", f"--dataset {args.dataset}: no such file or folder; write one with `myriad dataset`")
+    from ..loader import load
+    from ..rl.env import Env
+
+    system = load(args.system)
+    try:
+        from ..rl.reference import reference_env
+
+        Env.require_finite_controls(reference_env(system), "a policy's output cannot be squashed into them")
+    except ValueError as exc:
+        return usage("imitate", str(exc))
+    from .run import run_imitation
+
+    try:
+        report = run_imitation(system, config, dataset=args.dataset, checkpoint_dir=args.checkpoint,
+                               resume=args.resume)
+    except ValueError as exc:  # a dataset of another spec, too few episodes in it
+        return usage("imitate", str(exc))
+    rec = report.record()
+    print(f"{system.name}: {config.method} from {config.demos} demonstrations (seed {config.seed}), "
+          f"{sum(report.seconds.values()):.1f} s ({report.status})")
+    print(f"  normalised score {rec['normalized_score']:.2f} (return {rec['episode_return']:.6g}); under mismatch "
+          f"+-{config.mismatch:g}: {rec['mismatch']['normalized_score']:.2f}; under observation noise "
+          f"{config.noise:g}: {rec['noise']['normalized_score']:.2f}")
+    if args.json:
+        from ..atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(rec, indent=1, allow_nan=False))
+    if args.plots:
+        from .plots import plot_report
+
+        for path in plot_report(report, Path(args.plots)):
+            print(f"  plot: {path}")
+    if report.failed:
+        print(f"myriad imitate: {system.name}: the training failed ({report.status}): {report.message}",
+              file=sys.stderr)
+        return 1
+    return 0
