@@ -1,5 +1,7 @@
 """``myriad dataset``: demonstrations of a policy in any system's environment, written as a Minari dataset (or one
-``.npz``). Arguments are checked before any work (exit 2); the dataset is written atomically and never overwritten."""
+``.npz``). Arguments are checked before any work (exit 2); the dataset is written atomically and never overwritten;
+exit 1 when a plan of the optimal or noisy policy did not converge or an MPC re-plan failed (the dataset is written,
+the episodes named on stderr)."""
 
 from __future__ import annotations
 
@@ -16,7 +18,8 @@ def add_parser(sub) -> None:
     s = sub.add_parser("dataset", help="an offline dataset (Minari) of a policy's episodes in a system's env",
                        epilog="the dataset lands in OUT/myriad/SYSTEM/NAME-v0 (load it with MINARI_DATASETS_PATH=OUT "
                               "and minari.load_dataset('myriad/SYSTEM/NAME-v0')) or, with --format npz, in "
-                              "OUT/SYSTEM-NAME-v0.npz; exit 2: a usage error or the dataset exists already")
+                              "OUT/SYSTEM-NAME-v0.npz; exit 1: a plan did not converge (the dataset is written, "
+                              "the episodes named); exit 2: a usage error or the dataset exists, before any work")
     s.add_argument("system", metavar="NAME|PATH")
     s.add_argument("--out", metavar="DIR", help="the datasets' folder, made if missing (default: Minari's own, "
                                                "$MINARI_DATASETS_PATH, else ~/.minari/datasets)")
@@ -68,4 +71,19 @@ def run(args) -> int:
               f"minari.load_dataset({dataset_id(system.name, name)!r})")
     else:
         print(f"  wrote {path}")
-    return 0
+    return _solver_warnings(episodes.info)
+
+
+def _solver_warnings(info) -> int:
+    """Exit 1, saying which, when a plan did not converge or an MPC re-plan failed: such episodes are written but
+    are not the optimum's."""
+    import sys
+
+    bad = [e for e, s in enumerate(info.get("plan_status", ())) if s != "converged"]
+    failed = [e for e, n in enumerate(info.get("replan_failures", ())) if n]
+    if bad:
+        print(f"myriad dataset: warning: the plans of episodes {bad} did not converge ({info['plan_status'][bad[0]]})",
+              file=sys.stderr)
+    if failed:
+        print(f"myriad dataset: warning: MPC re-plans failed in episodes {failed}", file=sys.stderr)
+    return 1 if bad or failed else 0

@@ -120,6 +120,15 @@ def test_the_command_writes_a_dataset_minari_loads_and_refuses_to_overwrite(tmp_
     assert "exists (never overwritten)" in capsys.readouterr().err
 
 
+def test_the_command_exits_1_naming_episodes_whose_plan_failed(capsys):
+    from myriad.runtime.datasets.cli import _solver_warnings
+
+    assert _solver_warnings({"plan_status": ["converged", "converged"]}) == 0
+    assert _solver_warnings({"plan_status": ["converged", "iteration_limit"]}) == 1
+    assert "episodes [1] did not converge (iteration_limit)" in capsys.readouterr().err
+    assert _solver_warnings({"replan_failures": [0, 2]}) == 1 and "episodes [1]" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("extra", "words"), [
     (["--episodes", "0"], "--episodes must be a positive integer"),
     (["--env", '{"steps": 0}'], "--env"),
