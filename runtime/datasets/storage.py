@@ -209,8 +209,9 @@ def write_dataset(episodes: Episodes, out: str | os.PathLike, name: str | None =
     Args:
         name: the dataset's name (default: the policy's).
         fmt: ``"minari"`` or ``"npz"``.
-        target: what the episodes were collected on (a spec path or a name), for the Gymnasium id that remakes the
-            env; default the episodes' system.
+        target: what the episodes were collected on (a spec path, a name or the system), for the Gymnasium id
+            that remakes the env (a system object has none: the spec's hash and text identify it); default what
+            :func:`~.collect.collect` was given.
 
     Raises:
         FileExistsError: the dataset exists already (never overwritten).
@@ -218,7 +219,10 @@ def write_dataset(episodes: Episodes, out: str | os.PathLike, name: str | None =
     if fmt not in FORMATS:
         raise ValueError(f"write_dataset: unknown format {fmt!r}; one of {', '.join(FORMATS)}")
     target = target if target is not None else episodes.info.get("target")
-    system = load(target if target is not None else episodes.info["system"])
+    if isinstance(target, System):
+        system = target
+    else:
+        system = load(target if target is not None else episodes.info["system"])
     if system.spec_sha256 != episodes.info["spec_sha256"]:
         raise ValueError(f"write_dataset: the episodes were collected on spec {episodes.info['spec_sha256'][:12]}, "
                          f"the target is {system.spec_sha256[:12]}")
