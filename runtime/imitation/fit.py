@@ -15,6 +15,7 @@ with the lowest held-out loss is kept, and ``patience`` epochs without a new bes
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, NamedTuple
 
 import equinox as eqx
@@ -97,12 +98,18 @@ def _epoch(policy: Policy, optimizer: Any, steps: int, net: Any, opt_state: Any,
     def one(carry, _):
         params, opt_state = carry
         value, grads = jax.value_and_grad(lambda p: loss(policy, eqx.combine(p, static), train_pairs))(params)
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        return (optax.apply_updates(params, updates), opt_state), value
+        with jax.numpy_dtype_promotion("standard"):  # optax's own arithmetic mixes its int32 count with floats
+            updates, opt_state = optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), value
 
     (params, opt_state), values = jax.lax.scan(one, (params, opt_state), None, length=steps)
     net = eqx.combine(params, static)
     return net, opt_state, values[-1], loss(policy, net, held_out)
+
+
+# One transformation object per learning rate: it is a static argument of the compiled epoch, so a new object per fit
+# (each DAgger iteration refits) would compile the epoch again.
+_adam = functools.lru_cache(maxsize=32)(optax.adam)
 
 
 class _Fit:
@@ -113,7 +120,7 @@ class _Fit:
     def __init__(self, policy, net, train_pairs, held_out, config, desc, path, identity):
         self.policy, self.config, self.desc, self.path = policy, config, desc, path
         self.train_pairs, self.held_out = train_pairs, held_out
-        self.optimizer = optax.adam(config.learning_rate)
+        self.optimizer = _adam(config.learning_rate)
         self.net, self.opt_state = net, self.optimizer.init(eqx.filter(net, eqx.is_array))
         self.best_net, self.best, self.since, self.history = net, np.inf, 0, []
         self.stopped = ""  # the stop a checkpoint was written at ("": none), so a resume does not go on past it
