@@ -103,7 +103,8 @@ def _parser(command: str | None = None):
                         "for timing the solves)")
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
-    for name in ("solve", "bench", "sysid", "e2e", "rl-reference"):  # the sweep has its own, for its workers too
+    # The sweep has its own, for its workers too.
+    for name in ("solve", "bench", "sysid", "e2e", "rl-reference", "dataset"):
         if name in sub.choices:
             cache = sub.choices[name].add_mutually_exclusive_group()
             cache.add_argument("--cache-dir", metavar="DIR",
