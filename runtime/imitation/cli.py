@@ -66,9 +66,10 @@ def run(args) -> int:
     rec = report.record()
     print(f"{system.name}: {config.method} from {config.demos} demonstrations (seed {config.seed}), "
           f"{sum(report.seconds.values()):.1f} s ({report.status})")
-    print(f"  normalised score {rec['normalized_score']:.2f} (return {rec['episode_return']:.6g}); under mismatch "
-          f"+-{config.mismatch:g}: {rec['mismatch']['normalized_score']:.2f}; under observation noise "
-          f"{config.noise:g}: {rec['noise']['normalized_score']:.2f}")
+    scores = report.scores
+    print(f"  normalised score {scores['normalized_score']:.2f} (return {scores['episode_return']:.6g}); under "
+          f"mismatch +-{config.mismatch:g}: {scores['mismatch']['normalized_score']:.2f}; under observation noise "
+          f"{config.noise:g}: {scores['noise']['normalized_score']:.2f}")
     if args.json:
         from ..atomic import atomic_write_text
 

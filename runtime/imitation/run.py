@@ -101,11 +101,21 @@ class ImitationReport:
         return not self.status.success
 
     def record(self) -> dict[str, Any]:
-        return {"system": self.system.name, "spec_sha256": self.system.spec_sha256, "method": self.config.method,
-                "demos": self.config.demos, "seed": self.config.seed, "status": self.status.value,
-                "message": self.message, **self.scores, "seconds": self.seconds, **self.counts,
-                "fit_epochs": len(self.fit_history), "dagger_history": [list(row) for row in self.history],
-                "config": to_json(self.config)}
+        """The JSON record (a non-finite number as null: strict JSON has none)."""
+        config = self.config
+        return _finite({"system": self.system.name, "spec_sha256": self.system.spec_sha256, "method": config.method,
+                        "demos": config.demos, "seed": config.seed, "status": self.status.value,
+                        "message": self.message, **self.scores, "seconds": self.seconds, **self.counts,
+                        "fit_epochs": len(self.fit_history), "dagger_history": [list(r) for r in self.history],
+                        "config": to_json(config)})
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return None if isinstance(value, float) and not np.isfinite(value) else value
 
 
 def demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None = None):
@@ -174,4 +184,6 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
     t = time.perf_counter()
     scores = score(env, policy, net, mismatch=config.mismatch, noise=config.noise, episodes=config.score_episodes)
     seconds["score"] = time.perf_counter() - t
+    if status.success and not np.isfinite(scores["episode_return"]):  # finite losses, yet the policy overflows
+        status, message = Stop.NON_FINITE, f"the policy's episode return is {scores['episode_return']}"
     return ImitationReport(system, config, policy, net, status, message, scores, bc.history, history, seconds, counts)
