@@ -47,22 +47,26 @@ def run(args) -> int:
     if args.dataset is not None and not Path(args.dataset).exists():
         return usage("imitate", f"--dataset {args.dataset}: no such file or folder; write one with `myriad dataset`")
     from ..loader import load
-    from ..rl.env import Env
+    from ..rl.reference import reference_env
 
     system = load(args.system)
-    try:
-        from ..rl.reference import reference_env
-
-        Env.require_finite_controls(reference_env(system), "a policy's output cannot be squashed into them")
+    try:  # a control without finite bounds: no action space to squash into, before any work
+        reference_env(system).require_finite_controls("a policy's output cannot be squashed into them")
     except ValueError as exc:
         return usage("imitate", str(exc))
+    if args.dataset is not None:  # another spec's or env version's, or too few episodes: refused before any work
+        from ..datasets.storage import load_dataset
+
+        try:
+            episodes, _ = load_dataset(args.dataset, system)
+        except (OSError, ValueError) as exc:
+            return usage("imitate", f"--dataset {args.dataset}: {exc}")
+        if len(episodes) < config.demos:
+            return usage("imitate", f"--dataset {args.dataset} has {len(episodes)} episodes, fewer than --demos "
+                                    f"{config.demos}")
     from .run import run_imitation
 
-    try:
-        report = run_imitation(system, config, dataset=args.dataset, checkpoint_dir=args.checkpoint,
-                               resume=args.resume)
-    except ValueError as exc:  # a dataset of another spec, too few episodes in it
-        return usage("imitate", str(exc))
+    report = run_imitation(system, config, dataset=args.dataset, checkpoint_dir=args.checkpoint, resume=args.resume)
     rec = report.record()
     print(f"{system.name}: {config.method} from {config.demos} demonstrations (seed {config.seed}), "
           f"{sum(report.seconds.values()):.1f} s ({report.status})")

@@ -105,3 +105,16 @@ def test_the_command_writes_its_record_and_plots_and_fails_on_a_failed_training(
     assert main([*args, "--set", "fit.learning_rate=1e300"]) == 1
     assert json.loads(out.read_text())["status"] == "non_finite"
     assert "the training failed" in capsys.readouterr().err
+
+
+def test_demonstrations_from_a_dataset_and_a_wrong_specs_dataset_refused(tmp_path):
+    from myriad.runtime.datasets import collect
+    from myriad.runtime.datasets.storage import write_dataset
+
+    episodes = collect("simple_case", "optimal", episodes=3, seed=1)  # actions in [-1, 1]: mapped onto the controls
+    path = str(write_dataset(episodes, tmp_path / "data", fmt="npz"))
+    assert main(["imitate", "van_der_pol", "--dataset", path, "--demos", "3"]) == 2  # another spec's
+    assert main(["imitate", "simple_case", "--dataset", path, "--demos", "5"]) == 2  # too few episodes
+    out = tmp_path / "r.json"
+    assert main(["imitate", "simple_case", "--dataset", path, "--demos", "3", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["normalized_score"] >= 80.0
