@@ -32,6 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+# A FieldError names the field, so `--set fit.x=...` / `--set dagger.x=...` is named by its dotted key.
+from ..configs import FieldError
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
 from ..learn.identity import arrays_id, describe, digest
 from ..learn.loop import Step, Stop, check_run, checkpoint_path, train
@@ -68,13 +70,13 @@ class DaggerConfig:
         for name in ("iterations", "rollouts", "checkpoint_every"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+                raise FieldError(f"{name} must be a positive integer, got {value!r}", name)
         for name in ("beta", "beta_decay"):
             value = getattr(self, name)
             if isinstance(value, bool) or not 0.0 <= value <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {value!r}")
+                raise FieldError(f"{name} must be in [0, 1], got {value!r}", name)
         if isinstance(self.start_noise, bool) or not 0.0 <= self.start_noise < np.inf:
-            raise ValueError(f"start_noise must be a finite number >= 0, got {self.start_noise!r}")
+            raise FieldError(f"start_noise must be a finite number >= 0, got {self.start_noise!r}", "start_noise")
 
 
 class DaggerResult(NamedTuple):

@@ -24,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+# A FieldError names the field, so `--set fit.x=...` / `--set dagger.x=...` is named by its dotted key.
+from ..configs import FieldError
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
 from ..learn.identity import arrays_id, describe, digest
 from ..learn.loop import Step, Stop, check_run, checkpoint_path, train
@@ -55,11 +57,11 @@ class FitConfig:
 
     def __post_init__(self):
         if isinstance(self.learning_rate, bool) or not 0 < self.learning_rate < np.inf:
-            raise ValueError(f"learning_rate must be a positive number, got {self.learning_rate!r}")
+            raise FieldError(f"learning_rate must be a positive number, got {self.learning_rate!r}", "learning_rate")
         for name in ("epochs", "steps", "patience", "width", "depth", "checkpoint_every"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+                raise FieldError(f"{name} must be a positive integer, got {value!r}", name)
 
 
 class Pairs(NamedTuple):
