@@ -1,9 +1,9 @@
 """Behaviour cloning and DAgger end to end (runtime/imitation/run.py, dagger.py, expert.py, cli.py) on Van der Pol:
 20 optimal demonstrations, the policy scored in the env by normalised score.
 
-Measured (2026-12-05, the 2-core machine shared with other jobs): BC 99.997 (nominal), 99.94 (mismatch +-0.1),
+Measured (2026-12-05, the 2-core machine under a load of about 12): BC 99.997 (nominal), 99.94 (mismatch +-0.1),
 99.36 (observation noise 0.02) in 48 s (demonstrations 24 s, fit 21 s); DAgger (2 iterations of 2 rollouts, 401
-expert labels, none failed) 99.9986 in 127 s."""
+expert labels, none failed) 99.9986 in 127 s. Default settings: runtime/imitation/README.md, Measurements."""
 
 import dataclasses
 import json
