@@ -118,3 +118,26 @@ def test_demonstrations_from_a_dataset_and_a_wrong_specs_dataset_refused(tmp_pat
     out = tmp_path / "r.json"
     assert main(["imitate", "simple_case", "--dataset", path, "--demos", "3", "--json", str(out)]) == 0
     assert json.loads(out.read_text())["normalized_score"] >= 80.0
+
+
+def test_with_beta_1_the_rollouts_are_the_experts_closed_loop_which_stays_on_the_optimum():
+    """beta = 1: the expert plays every step. From the nominal start with the nominal model, re-solving from a state
+    on the optimal trajectory gives the rest of the same plan (the principle of optimality), so the rollout visits
+    the optimal trajectory and every label is the optimal plan's control there."""
+    from myriad.runtime.imitation.dagger import _Dagger
+    from myriad.runtime.imitation.fit import FitConfig, Pairs
+    from myriad.runtime.imitation.policy import Policy
+    from myriad.runtime.rl.env import play
+
+    env = reference_env("simple_case")
+    policy = Policy.of(env, width=8, depth=1)
+    net = policy.init(jax.random.PRNGKey(0))
+    pairs = Pairs.of(np.zeros((4, 2)), np.zeros((4, 1)))
+    config = DaggerConfig(iterations=1, rollouts=2, beta=1.0, start_noise=0.0)
+    learner = _Dagger(env, policy, net, pairs, pairs, Expert(env), config, FitConfig(), 0, None, ("", {}))
+    obs, labels, weights = learner._label(0)
+    optimum = play(env, learner.plan0, env.default_params())
+    assert weights.all()
+    for e in range(2):
+        np.testing.assert_allclose(obs[e * 100:(e + 1) * 100, :1], np.asarray(optimum.states)[:-1], atol=1e-6)
+        np.testing.assert_allclose(labels[e * 100:(e + 1) * 100], policy.normalise(learner.plan0), atol=1e-6)
