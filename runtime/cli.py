@@ -7,6 +7,7 @@ none, an output file whose folder is missing or not writable, ...) are found bef
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import importlib
 import json
@@ -57,25 +58,55 @@ _SOLVE_METAVARS = {"intervals": "N", "tolerance": "TOL", "max_refinements": "K",
                    "x0_std": "F", "seed": "S"}
 
 
-# Commands that build only their own parser: the others' parsers live in their packages, whose imports (equinox,
-# optax, optimistix, gymnasium) cost ~0.7 s; `myriad --help` and the other commands build them all.
-_OWN_PARSER_ONLY = ("solve", "bench")
-# The other commands: their parser (add_parser) and run() live in a package's cli.py.
+# Every command, in `myriad --help`'s order, with its one-line summary. A command's parser is built whole only when
+# that command runs (or for `_parser()`): the others are their names and summaries, so `myriad --help` imports no
+# JAX (the registries behind the choices) and no package (equinox, optax, gymnasium). The package commands' parsers
+# (add_parser) and run() live in a package's cli.py, whose add_parser says the same summary
+# (tests/runtime/test_cold_start.py checks).
+_COMMANDS = {
+    "solve": "solve one system",
+    "sysid": "system identification: fit a model to trajectories, plan on it",
+    "sweep": "systems x methods x seeds on one machine or a Ray cluster, as one table",
+    "e2e": "end-to-end learning: imitate the true optimum through the planner (Algorithm 2)",
+    "rl-reference": "reference scores of any spec (certified optimum, zero control, random); regenerate or check the "
+                    "shipped ones",
+    "dataset": "an offline dataset (Minari) of a policy's episodes in a system's env",
+    "imitate": "imitation baselines: behaviour cloning or DAgger from optimal demonstrations",
+    "bench": "the reference table (published setting + best over transcriptions)",
+}
+# The package commands -> their package.
 _PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl", "dataset": "datasets",
                      "imitate": "imitation"}
 
 
 def _parser(command: str | None = None):
-    """The argument parser; with ``command`` (``solve`` or ``bench``) the package commands' parsers are left out."""
+    """The argument parser: every command's whole parser, or with ``command`` that one alone (any other word, e.g.
+    ``""``: none) and the others as their names and summaries, enough for the top-level help and its errors."""
+    p = _Parser(prog="myriad", description="Trajectory optimisation on myriad systems.")
+    p.add_argument("-v", "--verbose", action="store_true", help="tracebacks on internal errors")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name, summary in _COMMANDS.items():
+        if command is not None and name != command:
+            sub.add_parser(name, help=summary)
+        elif name in _PACKAGE_COMMANDS:
+            importlib.import_module(f".{_PACKAGE_COMMANDS[name]}.cli", __package__).add_parser(sub)
+        else:
+            {"solve": _add_solve, "bench": _add_bench}[name](sub.add_parser(name, help=summary))
+        if name != "sweep" and (command is None or name == command):  # the sweep has its own, for its workers too
+            cache = sub.choices[name].add_mutually_exclusive_group()
+            cache.add_argument("--cache-dir", metavar="DIR",
+                               help="JAX's persistent compilation cache, reused by later runs and safe to delete "
+                                    "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
+            cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
+    return p
+
+
+def _add_solve(s) -> None:
     # The choices come from the registries: a new transcription, solver or integrator appears here by itself.
     from .integrators import INTEGRATORS
     from .solve_config import METHODS, SolveConfig
     from .solvers import SOLVERS
 
-    p = _Parser(prog="myriad", description="Trajectory optimisation on myriad systems.")
-    p.add_argument("-v", "--verbose", action="store_true", help="tracebacks on internal errors")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    s = sub.add_parser("solve", help="solve one system")
     s.add_argument("system", metavar="NAME|PATH")
     add_arguments(s, SolveConfig, spelled=_SOLVE_SPELLED, metavars=_SOLVE_METAVARS,
                   choices={"transcription": list(METHODS), "solver": list(SOLVERS),
@@ -85,10 +116,12 @@ def _parser(command: str | None = None):
     s.add_argument("--error-tolerance", type=float, default=None, metavar="TOL",
                    help="warn (on stderr) when the error estimate, the relative local error of the dynamics on the "
                         "method's grid, exceeds TOL (default: warn only when the re-simulation disagrees)")
-    if command not in _OWN_PARSER_ONLY:
-        for package in _PACKAGE_COMMANDS.values():
-            importlib.import_module(f".{package}.cli", __package__).add_parser(sub)
-    b = sub.add_parser("bench", help="the reference table (published setting + best over transcriptions)")
+    _add_compile(s, "each program runs once or for one solve")
+
+
+def _add_bench(b) -> None:
+    from .solvers import SOLVERS
+
     b.add_argument("--systems", nargs="+", metavar="NAME", help="default: all shipped systems")
     b.add_argument("--json", metavar="FILE")
     b.add_argument("--markdown", metavar="FILE")
@@ -97,21 +130,28 @@ def _parser(command: str | None = None):
     b.add_argument("--jobs", type=int, metavar="N",
                    help="processes solving, one system each at a time, this one included (default: one per usable "
                         "core; 1: this process alone)")
-    b.add_argument("--compile", choices=("quick", "full"), default="quick",
-                   help="XLA backend optimisation: quick (level 0, no CPU fusion emitters; the default: each "
-                        "program runs for one solve, and compiling is most of a first run) or full (XLA's default, "
-                        "for timing the solves)")
+    _add_compile(b, "each program runs for one solve")
     b.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help="the NLP solver of every direct transcription in the table (default: ipopt)")
-    # The sweep has its own, for its workers too.
-    for name in ("solve", "bench", "sysid", "e2e", "rl-reference", "dataset"):
-        if name in sub.choices:
-            cache = sub.choices[name].add_mutually_exclusive_group()
-            cache.add_argument("--cache-dir", metavar="DIR",
-                               help="JAX's persistent compilation cache, reused by later runs and safe to delete "
-                                    "(default: $MYRIAD_JAX_CACHE, else ~/.cache/myriad/jax)")
-            cache.add_argument("--no-cache", action="store_true", help="no persistent compilation cache")
-    return p
+
+
+def _add_compile(parser, why: str) -> None:
+    parser.add_argument("--compile", choices=("quick", "full"), default="quick",
+                        help=f"XLA backend optimisation: quick (level 0, no CPU fusion emitters; the default: {why}, "
+                             "and compiling is most of a first run) or full (XLA's default, for timing the solves)")
+
+
+@contextlib.contextmanager
+def _compiler_options(choice: str):
+    """``--compile``'s XLA options while the command runs (main() may be called in a process that compiles more)."""
+    from .compilation import programs
+
+    previous = programs.compiler_options()
+    programs.set_compiler_options(programs.QUICK if choice == "quick" else None)
+    try:
+        yield
+    finally:
+        programs.set_compiler_options(previous)
 
 
 def _configure_jax(args=None):
@@ -166,7 +206,8 @@ def _cmd_solve(args) -> int:
             system.require_schema1_features(f"--transcription {config.transcription}")
         except UnsupportedFeature as exc:
             return _usage(f"{exc}; choose a direct transcription")
-    sol = config.solve(system)
+    with _compiler_options(args.compile):
+        sol = config.solve(system)
     state = "converged" if sol.converged else "NOT CONVERGED"
     print(f"{system.name}: {sol.transcription} + {sol.solver} ({sol.integrator}): {state} after {sol.iterations} "
           f"iterations ({sol.message})")
@@ -258,17 +299,12 @@ def _cmd_bench(args) -> int:
     if args.plots:
         os.makedirs(args.plots, exist_ok=True)
     t0 = time.perf_counter()
-    from .compilation import programs
     from .solvers import SOLVERS
 
     solver = SOLVERS[args.solver]() if args.solver else None
-    previous = programs.compiler_options()  # main() may be called in a process that compiles more afterwards
-    programs.set_compiler_options(programs.QUICK if args.compile == "quick" else None)
-    try:
+    with _compiler_options(args.compile):
         rows = run_bench(names, alternatives=not args.published_only, solver=solver,
                          progress=lambda s: print(s, flush=True), plots_dir=args.plots, jobs=args.jobs)
-    finally:
-        programs.set_compiler_options(previous)
     total = time.perf_counter() - t0
     table_seconds = sum(r.main.compile_seconds + r.main.solve_seconds for r in rows)
     table = markdown_table(rows, total)
@@ -287,8 +323,10 @@ def _cmd_bench(args) -> int:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    command = next((a for a in argv if not a.startswith("-")), None)
-    parser = _parser(command if command in _OWN_PARSER_ONLY else None)
+    # The command's parser alone is built whole: `myriad --help` and the other commands import no other's.
+    word = next((a for a in argv if not a.startswith("-")), "")
+    folded = [name for name in _COMMANDS if name.lower() == word.lower()]  # as _Parser takes it: SWEEP is sweep
+    parser = _parser(folded[0] if len(folded) == 1 else "")
     args, extras = parser.parse_known_args(argv)
     if extras:  # reported by the subcommand's parser: its usage, its flags (argparse would show the top level's)
         sub = parser._subparsers._group_actions[0].choices.get(args.command) if args.command else None

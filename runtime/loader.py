@@ -35,9 +35,8 @@ def spec_build_dir() -> Path:
 
 @functools.cache  # read the compiler's sources once per process, not on every load by path
 def _compiler_fingerprint() -> str:
-    import myriad.compiler as compiler
-
-    root = Path(compiler.__file__).parent
+    # Found, not imported: a spec compiled earlier loads without importing the compiler (sympy).
+    root = Path(importlib.util.find_spec("myriad.compiler").origin).parent
     h = hashlib.sha256()
     for p in sorted([*root.glob("*.py"), *root.glob("templates/*.jinja")]):
         h.update(p.name.encode())
@@ -64,19 +63,24 @@ def load(target: str | os.PathLike) -> System:
         from .systems import peers
 
         return peers.get(text[len(PEER_PREFIX):])
-    from myriad.compiler import compile_file  # the compiler (sympy) is only needed for specs loaded by path
-
-    raw = path.read_bytes()
-    key = hashlib.sha256(raw + _compiler_fingerprint().encode()).hexdigest()
+    # The generated module depends on the spec's bytes, the compiler and the path it names (relative to the working
+    # folder where inside it): all in the key, so a module found under it is what compiling again would write.
+    where = f"{os.path.abspath(text)}\0{os.getcwd()}\0{_compiler_fingerprint()}"
+    key = hashlib.sha256(path.read_bytes() + where.encode()).hexdigest()
     if key in _loaded:
         return _loaded[key]
-    compiled = compile_file(path)
     folder = spec_build_dir() / key[:32]
-    module_path = folder / f"{compiled.name}.py"
-    if not module_path.exists() or module_path.read_text(encoding="utf-8") != compiled.text:
+    built = sorted(folder.glob("*.py"))  # written atomically: a module there is whole
+    if len(built) == 1:
+        module_path = built[0]
+    else:
+        from myriad.compiler import compile_file  # the compiler (sympy) is only needed to compile a spec
+
+        compiled = compile_file(path)
+        module_path = folder / f"{compiled.name}.py"
         folder.mkdir(parents=True, exist_ok=True)
         atomic_write_text(module_path, compiled.text)
-    module_name = f"myriad_user_systems.{compiled.name}_{key[:16]}"
+    module_name = f"myriad_user_systems.{module_path.stem}_{key[:16]}"
     spec = importlib.util.spec_from_file_location(module_name, module_path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module

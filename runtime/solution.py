@@ -129,8 +129,9 @@ class Solution:
         return (f"the discretised and re-simulated answers disagree by {self.agreement_gap:.2e} (relative), more "
                 f"than the agreement tolerance {self.agreement_tolerance:.3g}: cost {self.cost:.8g} vs re-simulated "
                 f"{self.simulated_cost:.8g}" + (f", final-value defect {finals}" if finals else "") +
-                "; the grid is too coarse for the dynamics (or the controls ring): use more --intervals, a "
-                "higher-order method, or --tolerance to refine the mesh")
+                "; the grid is too coarse for the dynamics (or the controls ring, or an unstable system amplifies "
+                "any difference open-loop): use more --intervals, a higher-order method, or --tolerance to refine "
+                "the mesh")
 
     def record(self) -> dict:
         """A JSON-ready dict (no arrays), one record of the bench's JSON."""
@@ -169,7 +170,8 @@ def json_number(v) -> float | None:
 def state_magnitudes(states):
     """s_i = 1 + max |x_i| over a trajectory's (K, n) points, ignoring non-finite ones: the scale of the error
     estimate and of the agreement verdict (Betts 2010, sec. 4.7.1, weight w_i + 1). Traceable (JAX) and NumPy alike."""
-    return 1.0 + jnp.max(jnp.where(jnp.isfinite(states), jnp.abs(states), 0.0), axis=0)
+    xp = np if isinstance(states, np.ndarray) else jnp  # NumPy in, NumPy out: eager jnp ops compile a program each
+    return 1.0 + xp.max(xp.where(xp.isfinite(states), xp.abs(states), 0.0), axis=0)
 
 
 def agreement_gap(system: System, sol: Solution) -> float:

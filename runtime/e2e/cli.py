@@ -61,6 +61,8 @@ def read_config(args):
     from .config import E2EConfig
 
     given = {}
+    if args.unroll is not None and args.unroll < 1:
+        raise ValueError(f"--unroll must be an integer >= 1 (planner steps per iteration), got {args.unroll}")
     if args.gradient is not None or args.unroll is not None:
         given["adjoint"] = adjoint(args.gradient or "unrolled", args.unroll)
     if args.implicit_solver_name is not None:  # extragradient: the configuration's default one
@@ -76,6 +78,12 @@ def run(args) -> int:
         return usage("e2e", error)
     if args.intervals < 1:
         return usage("e2e", "--intervals must be at least 1")
+    if args.expert_index < 0:
+        return usage("e2e", f"--expert-index must be an integer >= 0 (a trajectory of --expert-split), got "
+                            f"{args.expert_index}")
+    if args.expert is not None and not Path(args.expert).is_file():
+        return usage("e2e", f"--expert {args.expert!r}: file not found; give a dataset .npz written by "
+                            f"myriad.runtime.learn.dataset.save_dataset (its .json sidecar beside it)")
     try:
         config = read_config(args)
     except ValueError as exc:
@@ -101,7 +109,7 @@ def run(args) -> int:
             expert = expert_from_dataset(args.expert, system, transcription, split=args.expert_split,
                                          index=args.expert_index)
         except (OSError, ValueError) as exc:
-            return usage("e2e", str(exc))
+            return usage("e2e", f"--expert {args.expert}: {exc}")
     report = run_e2e(system, config, transcription=transcription, checkpoint_dir=args.checkpoint,
                      resume=args.resume, expert=expert)
     rec = report.record()

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
 from ..learn.identity import describe, digest, optimizer_identity
 from ..learn.models import MODELS as _REGISTRY
+from ..learn.models import network_error
 from ..solvers.adjoint import Implicit, Unrolled, adjoint
 from ..solvers.extragradient import Extragradient
 from ..solvers.interior_point import InteriorPoint
@@ -24,6 +27,20 @@ ON_FAILURE = ("skip", "unrolled", "backtrack")
 
 def _int(v: Any, low: int) -> bool:
     return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= low
+
+
+def _pairs(value: Any) -> tuple[tuple[str, float], ...]:
+    """``cost_guess`` as ``((name, value), ...)`` from a mapping or a list of pairs (JSON gives either)."""
+    items = value.items() if isinstance(value, Mapping) else value
+    try:
+        pairs = tuple((k, v) for k, v in items) if not isinstance(value, str) else None
+    except (TypeError, ValueError):  # not iterable, or items that are not pairs
+        pairs = None
+    if pairs is None or not all(isinstance(k, str) and isinstance(v, numbers.Real) and not isinstance(v, bool)
+                                and math.isfinite(v) for k, v in pairs):
+        raise ValueError(f'E2EConfig: cost_guess must map names in learn_cost to finite numbers, e.g. {{"w": 0.5}} '
+                         f'or [["w", 0.5]], got {value!r}')
+    return tuple((k, float(v)) for k, v in dict(pairs).items())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,7 +132,7 @@ class E2EConfig:
             raise ValueError(f"E2EConfig: optimizer must be a learning rate or an optax.GradientTransformation, "
                              f"got {opt!r}")
         object.__setattr__(self, "learn_cost", tuple(self.learn_cost))
-        object.__setattr__(self, "cost_guess", tuple((str(k), float(v)) for k, v in dict(self.cost_guess).items()))
+        object.__setattr__(self, "cost_guess", _pairs(self.cost_guess))
         unknown = set(dict(self.cost_guess)) - set(self.learn_cost)
         if unknown:
             raise ValueError(f"E2EConfig: cost_guess names {sorted(unknown)}, which are not in learn_cost")
@@ -126,6 +143,8 @@ class E2EConfig:
         if self.implicit_solver is not None and not isinstance(self.implicit_solver, (Extragradient, InteriorPoint)):
             raise ValueError(f"E2EConfig: implicit_solver must be an Extragradient or an InteriorPoint, got "
                              f"{type(self.implicit_solver).__name__}")
+        if error := network_error(self.hidden, self.activation):
+            raise ValueError(f"E2EConfig: {error}")
         object.__setattr__(self, "hidden", tuple(int(w) for w in self.hidden))
         soft = self.soft_state_bounds
         if soft is not None:

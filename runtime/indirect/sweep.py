@@ -10,7 +10,7 @@ from typing import Any, Callable, ClassVar
 import jax.numpy as jnp
 import numpy as np
 
-from ..data import ProblemData, default_data
+from ..data import ProblemData, default_data, require_float64
 from ..method import AbstractMethod
 from ..solution import Solution
 from ..solvers.pure import AbstractPureSolver
@@ -134,6 +134,7 @@ class ForwardBackwardSweep(AbstractMethod, AbstractPureSolver):
         Raises:
             OptimalControlUnavailable: if ``system.optimal_control_kind == "none"``.
         """
+        require_float64("ForwardBackwardSweep.solve")
         return self._solve_single(system, default_data(system, params, x0), z0)
 
     # ---- AbstractPureSolver (the problem is the system) ---------------------------------------------------------

@@ -23,8 +23,8 @@ def add_parser(sub) -> None:
 
     parser = sub.add_parser("rl-reference", help="reference scores of any spec (certified optimum, zero control, "
                             "random); regenerate or check the shipped ones")
-    parser.add_argument("target", nargs="?", metavar="SPEC", help="a shipped name, peers/NAME or a spec path: print "
-                        "its record (computed once, then read from the cache); without it, the shipped file")
+    parser.add_argument("target", nargs="?", metavar="NAME|PATH", help="a shipped name, peers/NAME or a spec path: "
+                        "print its record (computed once, then read from the cache); without it, the shipped file")
     parser.add_argument("--json", metavar="FILE", help="with SPEC: also write the whole record here")
     parser.add_argument("--scores-dir", metavar="DIR", help="with SPEC: the records' cache folder (default "
                         "$MYRIAD_RL_REFERENCE_CACHE, else $MYRIAD_CACHE/rl-reference, else "
@@ -72,9 +72,13 @@ def _one(args) -> int:
 
 
 def run(args) -> int:
+    from .._command_args import output_file_error
     from ..systems import NAMES
     from .reference import run as run_reference
 
+    if error := output_file_error(args.json, "--json"):  # before minutes of certifying
+        print(f"myriad rl-reference: error: {error}", file=sys.stderr)
+        return 2
     if args.target is not None:
         if args.write or args.systems:
             print("myriad rl-reference: error: SPEC prints one record; --write/--systems rewrite the shipped file",

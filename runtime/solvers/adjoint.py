@@ -20,48 +20,43 @@ from typing import Any, ClassVar
 __all__ = ["ADJOINTS", "Implicit", "Unrolled", "adjoint"]
 
 
-def _check_steps(owner: str, name: str, value: Any) -> None:
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-        raise ValueError(f"{owner}({name}={value!r}): expected an integer >= 1 or None")
+class _Adjoint:
+    """What both adjoints share: K of the unrolled passes in the field named ``_field`` (None: the learner's default
+    K)."""
 
-
-@dataclasses.dataclass(frozen=True)
-class Unrolled:
-    """Reverse mode through ``steps`` (K) solver iterations (None: the learner's default K)."""
-
-    name: ClassVar[str] = "unrolled"
-    steps: int | None = None
+    _field: ClassVar[str]
 
     def __post_init__(self):
-        _check_steps("Unrolled", "steps", self.steps)
+        value = getattr(self, self._field)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"{type(self).__name__}({self._field}={value!r}): expected an integer >= 1 or None")
 
     @property
     def unroll(self) -> int | None:
-        """K of the unrolled passes."""
-        return self.steps
+        """K of the unrolled passes (an implicit adjoint's fallback's)."""
+        return getattr(self, self._field)
 
-    def with_unroll(self, steps: int) -> Unrolled:
-        return dataclasses.replace(self, steps=steps)
+    def with_unroll(self, steps: int):
+        return dataclasses.replace(self, **{self._field: steps})
 
 
 @dataclasses.dataclass(frozen=True)
-class Implicit:
+class Unrolled(_Adjoint):
+    """Reverse mode through ``steps`` (K) solver iterations (None: the learner's default K)."""
+
+    name: ClassVar[str] = "unrolled"
+    _field: ClassVar[str] = "steps"
+    steps: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Implicit(_Adjoint):
     """The implicit function theorem at a converged solve; ``fallback_steps``: K of the unrolled gradient a learner
     falls back to where the solve did not converge (None: the learner's default K)."""
 
     name: ClassVar[str] = "implicit"
+    _field: ClassVar[str] = "fallback_steps"
     fallback_steps: int | None = None
-
-    def __post_init__(self):
-        _check_steps("Implicit", "fallback_steps", self.fallback_steps)
-
-    @property
-    def unroll(self) -> int | None:
-        """K of the unrolled passes (the fallback's)."""
-        return self.fallback_steps
-
-    def with_unroll(self, steps: int) -> Implicit:
-        return dataclasses.replace(self, fallback_steps=steps)
 
 
 ADJOINTS: dict[str, type] = {"unrolled": Unrolled, "implicit": Implicit}

@@ -1,16 +1,7 @@
-"""The abstract NLP solver and what every solver shares.
-
-Every solver consumes the :class:`~myriad.runtime.nlp.NLP`
-
-    minimise F(z; data)  subject to  c_lower <= c(z; data) <= c_upper,  z_lower <= z <= z_upper
-
-and returns an :class:`~myriad.runtime.nlp.NLPResult`. Three pieces are shared:
-
-* :func:`constraint_violation`, the one feasibility measure every solver reports and judges success by;
-* :class:`ScaledProblem`, the change of variables ``w = z / z_scale`` every solver works in;
-* :func:`cached`, a per-NLP cache of what a solver compiled (its
-  :class:`~myriad.runtime.compilation.CompiledFunction` objects), so that a second solve of the same NLP with new
-  ``data`` of the same shapes never traces or compiles again.
+"""The abstract NLP solver and what every solver shares: the one feasibility measure every solver reports and judges
+success by (:func:`constraint_violation`), the change of variables ``w = z / z_scale`` every solver works in
+(:class:`ScaledProblem`), and a per-NLP cache of what a solver compiled (:func:`cached`), so that a second solve of the
+same NLP with new ``data`` of the same shapes never traces or compiles again.
 """
 
 from __future__ import annotations
@@ -24,15 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-# The compilation infrastructure, re-exported for the solvers that compile through it (ipopt, slsqp, pure).
-from ..compilation import CompiledFunction as CompiledFunction
-from ..compilation import compile_many as compile_many
-from ..compilation import program_key as program_key
 from ..nlp import NLP, NLPResult, evaluation
 
 __all__ = [
     "AbstractNLPSolver",
-    "CompiledFunction",
     "ScaledProblem",
     "cached",
     "canonical_data",
@@ -45,34 +31,16 @@ T = TypeVar("T")
 
 
 class AbstractNLPSolver(abc.ABC):
-    """A configured NLP solver. Concrete solvers are frozen (hence hashable) dataclasses holding only options.
-
-    A solver object carries no per-problem state: everything compiled for an NLP lives in the cache of
-    :func:`cached`, keyed weakly by the NLP, so one solver object can solve many NLPs and the same NLP can be solved
-    repeatedly with new ``data`` without recompiling.
-
-    Class attributes:
-        label: the registry name (``"ipopt"``), used by the CLI and in reports.
-    """
+    """A configured NLP solver: a frozen (hence hashable) dataclass of options only, with its registry name ``label``
+    (``"ipopt"``). Everything compiled for an NLP lives in the cache of :func:`cached`, keyed weakly by the NLP."""
 
     label: ClassVar[str]
 
     @abc.abstractmethod
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
-        """Solve ``nlp`` for the problem data ``data``.
-
-        Args:
-            nlp: the nonlinear program.
-            data: the problem data pytree, ``{"params": dict, "x0": Array}``; only its shapes are static.
-            z0: the starting point (n_variables,); ``nlp.initial_guess(data)`` when None.
-
-        Returns:
-            An :class:`NLPResult` in the original variables ``z``. ``success`` is True only for a solve that
-            converged to the solver's tolerance at a point within its constraint tolerance.
-        """
-
-
-# ---- feasibility ---------------------------------------------------------------------------------------------
+        """Solve ``nlp`` for the problem data ``data`` (only its shapes are static) from ``z0`` (the NLP's initial
+        guess when None): an :class:`NLPResult` in the original variables ``z``, ``success`` only for a solve that
+        converged to the solver's tolerance at a point within its constraint tolerance."""
 
 
 def constraint_violation(nlp: NLP, z: Any, c: Any | None) -> float:
@@ -82,13 +50,8 @@ def constraint_violation(nlp: NLP, z: Any, c: Any | None) -> float:
         v(z) = \\max\\Big(0,\\ \\max_i (c^l_i - c_i(z)),\\ \\max_i (c_i(z) - c^u_i),
                           \\ \\max_j (z^l_j - z_j),\\ \\max_j (z_j - z^u_j)\\Big)
 
-    Infinite bounds never contribute. A non-finite ``z`` or ``c`` gives ``inf``, so NaNs can never pass a
-    tolerance test.
-
-    Args:
-        nlp: supplies the bounds.
-        z: the point (n_variables,).
-        c: ``c(z)`` (n_constraints,), or None when the NLP has no constraints.
+    at ``z`` with ``c = c(z)`` (None when the NLP has no constraints). Infinite bounds never contribute. A non-finite
+    ``z`` or ``c`` gives ``inf``, so NaNs can never pass a tolerance test.
     """
     z = np.asarray(z, dtype=np.float64)
     return float(constraint_violations(nlp, z[None], None if c is None else np.asarray(c)[None])[0])
@@ -112,18 +75,12 @@ def constraint_violations(nlp: NLP, z: Any, c: Any | None) -> np.ndarray:
 def split_constraints(c_lower: np.ndarray, c_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Indices of the equalities and of the finite upper and lower bounds of the inequalities.
 
-    Row ``i`` is an equality where ``c_lower[i] == c_upper[i]`` (finite); otherwise each finite side is a one-sided
-    inequality, so a two-sided row appears in both ``upper`` and ``lower`` and a row free on both sides in neither.
-
-    Returns:
-        (eq, upper, lower) int index arrays into the constraint vector.
+    ``(eq, upper, lower)``: row ``i`` is an equality where ``c_lower[i] == c_upper[i]`` (finite); otherwise each
+    finite side is a one-sided inequality, so a two-sided row is in both ``upper`` and ``lower``.
     """
     c_lower, c_upper = np.asarray(c_lower), np.asarray(c_upper)
     eq = (c_lower == c_upper) & np.isfinite(c_lower)
     return np.flatnonzero(eq), np.flatnonzero(~eq & np.isfinite(c_upper)), np.flatnonzero(~eq & np.isfinite(c_lower))
-
-
-# ---- variable scaling ----------------------------------------------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -231,26 +188,19 @@ def _scaled_stages(derivatives: Callable, s: Any, index: np.ndarray) -> Callable
     return scaled
 
 
-# ---- data and the per-NLP cache ------------------------------------------------------------------------------
-
-
 def unstack(tree: Any, size: int) -> list:
-    """``[tree[i] for i < size]`` for a pytree of host arrays with a leading axis ``size``: flattened once (a
-    ``jax.tree.map`` per member was a tenth of a 1024-member batch's wall time on Mould Fungicide)."""
+    """``[tree[i] for i < size]`` for a pytree of host arrays with a leading axis ``size``, flattened once (not a
+    ``jax.tree.map`` per member: measured in the solver-code note)."""
     leaves, treedef = jax.tree.flatten(tree)
     leaves = [np.asarray(leaf) for leaf in leaves]
     return [treedef.unflatten([leaf[i] for leaf in leaves]) for i in range(size)]
 
 
 def canonical_data(data: Any) -> Any:
-    """``data`` as arrays (device or NumPy) with concrete (never weak) dtypes.
-
-    A Python float and a float64 array trace to different signatures (weak vs strong type); canonicalising first
-    means a solve with ``{"k": 1.0}`` and one with ``{"k": jnp.float64(2.0)}`` share one compiled program.
-    """
-    # A device array with a concrete dtype is already canonical: copying it to the host and back cost 0.2 ms a solve.
-    # So is a NumPy array of a canonical dtype (what default_data builds): a compiled program takes it as it is
-    # (~4 us a leaf), where making a device array of it (jax.device_put) cost ~70 us a leaf.
+    """``data`` as arrays (device or NumPy) with concrete (never weak) dtypes, so that a solve with ``{"k": 1.0}``
+    and one with ``{"k": jnp.float64(2.0)}`` share one compiled program (weak and strong types trace apart)."""
+    # A device array with a concrete dtype is already canonical, and so is a NumPy array of a canonical dtype (what
+    # default_data builds): a compiled program takes it as it is (copies cost more: the solver-code note).
     return jax.tree.map(_canonical_leaf, data)
 
 
@@ -265,11 +215,8 @@ _CACHE: "weakref.WeakKeyDictionary[NLP, dict[Hashable, Any]]" = weakref.WeakKeyD
 
 
 def cached(nlp: NLP, key: Hashable, build: Callable[[], T]) -> T:
-    """The object ``build()`` made for ``(nlp, key)``, built on first use and kept while ``nlp`` is alive.
-
-    ``key`` names what was built (typically the solver class and the options that change the compiled code).
-    ``build`` must not capture ``nlp`` itself (see :class:`ScaledProblem`), or the entry would never be freed.
-    """
+    """The object ``build()`` made for ``(nlp, key)``, built on first use and kept while ``nlp`` is alive. ``build``
+    must not capture ``nlp`` itself (see :class:`ScaledProblem`), or the entry would never be freed."""
     per_nlp = _CACHE.setdefault(nlp, {})
     if key not in per_nlp:
         per_nlp[key] = build()

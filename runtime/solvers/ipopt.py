@@ -3,26 +3,25 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Any, ClassVar, Literal, Mapping, final
 
-import cyipopt
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation import CompiledFunction, compile_many, program_key
+from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import from_ipopt
 from .base import (
     AbstractNLPSolver,
-    CompiledFunction,
     ScaledProblem,
     cached,
     canonical_data,
-    compile_many,
     constraint_violation,
     initial_point,
-    program_key,
 )
 from .sparse import HessianColouring, compressed_jacobian_fn, dense_from_hvps, hessian_structure, hvp_batch_fn
 
@@ -59,21 +58,14 @@ class Ipopt(AbstractNLPSolver):
     ``hessian="limited-memory"``) the lower triangle of the Hessian of the Lagrangian
     ``sigma * d2F/dw2 + sum_i lambda_i d2c_i/dw2``; all are exact JAX derivatives, jit-compiled once per NLP.
 
-    * Variables: IPOPT works in ``w = z / nlp.z_scale`` (see :class:`ScaledProblem`) rather than through its
-      user-scaling option, so that every solver sees the same problem; IPOPT's own gradient-based scaling of the
-      objective and constraints stays on.
-    * First order: objective, gradient, constraints and Jacobian come from one compiled program per point, built on
-      ``nlp.objective_and_constraints`` where the transcription fuses them (shooting: one rollout for both), and
-      shared by IPOPT's four callbacks at that point.
-    * Jacobian: the triplets of ``nlp.jacobian_sparsity`` (deduplicated), evaluated by coloured JVPs; all ``m * n``
-      entries when no sparsity is given (then the gradient and the Jacobian rows are one reverse pass each after
-      a single forward pass).
+    * Variables: IPOPT works in ``w = z / nlp.z_scale`` (:class:`ScaledProblem`); its own gradient-based scaling stays.
+    * Derivatives: one compiled program per point for all four first-order callbacks, the Jacobian as the triplets
+      of ``nlp.jacobian_sparsity`` by coloured JVPs (dense without one).
     * Hessian: the pattern is detected numerically once per NLP, as the union of the non-zeros of the dense Lagrangian
       Hessian at two random points near the first starting point with random multipliers (plus the diagonal);
-      values then come from coloured Hessian-vector products, 16 per call of one compiled program that serves
-      the detection too (a second-order program is the costliest thing to compile). An entry is missed only if
-      it vanishes at both random points for the first solve's ``data`` (e.g. a term multiplied by a parameter
-      that is exactly zero there); pass ``hessian="limited-memory"`` for such problems.
+      values then come from coloured Hessian-vector products. An entry is missed only if it vanishes at both random
+      points for the first solve's ``data`` (e.g. a term multiplied by a parameter that is exactly zero there); pass
+      ``hessian="limited-memory"`` for such problems.
     * Bounds are kept exact (``bound_relax_factor = 0``, ``honor_original_bounds = yes``): a solver that steps a hair
       outside a control box stalls on dynamics that are undefined there.
 
@@ -122,6 +114,8 @@ class Ipopt(AbstractNLPSolver):
         }
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        require_float64("Ipopt.solve")
+        import cyipopt  # here, not at the top: its import costs every solve by another solver about 0.35 s
         exact = self.hessian == "exact"
         fns = cached(nlp, ("ipopt", exact),
                      lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity, exact))
@@ -175,13 +169,9 @@ class Ipopt(AbstractNLPSolver):
 def judge(
     status: int, message: bytes | str, violation: float, objective: float, constr_viol_tol: float
 ) -> tuple[bool, str]:
-    """IPOPT's exit status as (success, message).
-
-    Success needs all three: a converged status (``Solve_Succeeded`` or ``Solved_To_Acceptable_Level``; the latter
-    only means IPOPT's looser ``acceptable_*`` tolerances held, e.g. a violation up to 1e-2), our own constraint
-    violation within ``constr_viol_tol``, and a finite objective. Every other status, including
-    ``Feasible_Point_Found`` (6), is a failure and keeps IPOPT's message.
-    """
+    """IPOPT's exit status as (success, message): success needs a converged status (``Solve_Succeeded`` or
+    ``Solved_To_Acceptable_Level``, whose looser ``acceptable_*`` tolerances allow e.g. a violation up to 1e-2), our
+    own violation within ``constr_viol_tol`` and a finite objective; every other status keeps IPOPT's message."""
     message = message.decode() if isinstance(message, bytes) else str(message)
     if status not in _CONVERGED:
         return False, message
@@ -200,16 +190,15 @@ def _finite(bounds: np.ndarray) -> np.ndarray:
 class _Derivatives:
     """The compiled functions IPOPT calls, for one NLP (in scaled variables ``w``).
 
-    Two programs: ``point`` (objective, gradient, constraints and Jacobian values at ``w``, packed into one vector)
-    and ``hvps`` (Hessian-vector products of the Lagrangian). IPOPT asks for the four first-order quantities in four
-    callbacks, nearly always at the same point (the trial point, then its derivatives once it is accepted); one
-    program per point means one dispatch and one rollout instead of four, and the derivatives of a rejected trial
-    point are the only waste.
+    Two programs: ``point`` (objective, gradient, constraints and Jacobian values at ``w``, packed into one vector,
+    on ``nlp.objective_and_constraints``: one rollout for shooting) and ``hvps`` (Hessian-vector products of the
+    Lagrangian, 16 per call, serving the pattern's detection too). IPOPT asks for the four first-order quantities in
+    four callbacks, nearly always at the same point: one program per point means one dispatch and one rollout
+    instead of four, and the derivatives of a rejected trial point are the only waste.
 
     One program (``shared``) where the transcription gives its Lagrangian's derivatives whole and the Jacobian is
-    dense (single shooting's stages): ``staged`` returns the packed point and the dense Hessian, and serves both.
-    Compiling one program instead of two took ``myriad bench --published-only --jobs 1`` (empty cache) from 55.2 to
-    42.4 s of CPU; a point call skips the second-order part (``hessian=False``, a ``lax.cond`` in the program).
+    dense (single shooting's stages): ``staged`` returns the packed point and the dense Hessian, and serves both
+    (less to compile); a point call skips the second-order part (``hessian=False``, a ``lax.cond``).
     """
 
     def __init__(self, problem: ScaledProblem, jacobian_sparsity: tuple[np.ndarray, np.ndarray] | None,
@@ -343,8 +332,10 @@ class _Callbacks:
         # CompiledFunction.__call__ would flatten `data` every time.
         self._data = data
         self._layout = fns.layout
-        self._jac_structure = fns.jacobian_structure
         self._recent: dict[bytes, np.ndarray] = {}
+        # cyipopt finds the callbacks by attribute; the first-order ones share one evaluation per point (_at).
+        self.gradient, self.constraints, self.jacobian = (functools.partial(self._at, part=p) for p in (1, 2, 3))
+        self.jacobianstructure = lambda: fns.jacobian_structure
         self.iterations = 0
         self._staged = None
         if fns.shared:
@@ -377,18 +368,6 @@ class _Callbacks:
 
     def objective(self, w):
         return float(self._at(w, 0)[0])
-
-    def gradient(self, w):
-        return self._at(w, 1)
-
-    def constraints(self, w):
-        return self._at(w, 2)
-
-    def jacobian(self, w):
-        return self._at(w, 3)
-
-    def jacobianstructure(self):
-        return self._jac_structure
 
     def _hessian(self, w, lagrange, obj_factor):
         sigma, lam = np.float64(obj_factor), np.asarray(lagrange, dtype=np.float64)

@@ -1,25 +1,13 @@
-r"""The pure-JAX solver tier: solvers whose whole solve is one JAX function of the problem data.
+r"""The pure-JAX solver tier: solvers whose whole solve is one JAX function ``(data, z0) -> output`` of a problem (an
+:class:`~myriad.runtime.nlp.NLP`, or a system for an indirect method): the tier that a learner differentiates through,
+an RL environment calls, and a GPU runs in batches. This base writes once the single solve (compile and solve time
+measured apart) and :meth:`AbstractPureSolver.solve_batch` (one program; the solver's ``batch_*`` hooks say how).
 
-A pure solver turns a problem (an :class:`~myriad.runtime.nlp.NLP`, or a system for an indirect method) into
-
-    solve_fn(problem): (data, z0) -> output          (jit-compiled; pure; vmap-able over data and z0)
-
-and this base writes the rest once: a single solve that measures compile and solve time apart, and
-:meth:`AbstractPureSolver.solve_batch`, one program for a batch of ``data``: ``jax.vmap`` of the same function, or
-``jax.lax.map`` (the members in turn) where the solver says vmap gains nothing (:meth:`batch_strategy`), vmapped in
-chunks one after another where the solver asks for them (:meth:`batch_chunk`), or, where the solver also gives its
-iteration apart (:meth:`batch_stepper`), with a chunk's worth of members in flight and each stopped member's place
-refilled (:func:`~.stepper.queued`).
-This is the tier that a learner differentiates through, an RL environment calls, and a GPU runs in batches.
-
-Differentiation. The solves here are ``lax.while_loop`` iterations (the NLP solvers': over a stepper,
-:mod:`.stepper`). Forward mode (``jax.jvp``) goes through the loop; reverse mode does not: ``jax.grad`` of a function
-of the extragradient's pure solve raises JAX's ``ValueError`` ("Reverse-mode differentiation does not work for
-lax.while_loop ..."), never a silent zero (``tests/runtime/solvers/test_pure_solvers.py`` checks it). Reverse mode in
-``data`` comes from the one implicit-function rule on the KKT conditions (:mod:`.implicit`): the interior point's
-pure solve carries it, and an NLP solver's ``differentiable_solve`` is its pure solve with it. Unrolling is a
-``lax.scan`` of the extragradient stepper's ``iterate`` (:class:`~myriad.runtime.e2e.planner.UnrolledPlanner`); a
-learner picks one by an adjoint object (:mod:`.adjoint`: ``Implicit()``, ``Unrolled(steps)``).
+Differentiation. Forward mode (``jax.jvp``) goes through the solves' ``lax.while_loop``; reverse mode does not (JAX's
+``ValueError``, never a silent zero). Reverse mode in ``data`` comes from the one implicit-function rule on the KKT
+conditions (:mod:`.implicit`): the interior point's pure solve carries it, and an NLP solver's ``differentiable_solve``
+is its pure solve with it. Unrolling is a ``lax.scan`` of the extragradient stepper's ``iterate``; a learner picks one
+by an adjoint object (:mod:`.adjoint`).
 """
 
 from __future__ import annotations
@@ -32,19 +20,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..compilation import programs
+from ..compilation import CompiledFunction, program_key, programs
 from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import Status
 from .base import (
     AbstractNLPSolver,
-    CompiledFunction,
     cached,
     canonical_data,
     constraint_violation,
     constraint_violations,
     initial_point,
-    program_key,
     unstack,
 )
 from .stepper import Stepper, queued
@@ -66,15 +52,10 @@ class ScaledEvaluation:
         self.evaluate = CompiledFunction(unscaled, program_key(problem.key, "evaluate"))
         self._evaluate_batch = CompiledFunction(jax.vmap(unscaled), program_key(problem.key, "evaluate:batch"))
 
-    def values(self, z: np.ndarray, data: Any) -> tuple[float, np.ndarray | None]:
-        """``(F(z), c(z))`` on the host; ``c`` is None when the problem has no constraints."""
-        f, c = self.evaluate(z, data)
-        return float(f), (np.asarray(c) if self.problem.n_constraints else None)
-
     def values_batch(self, z: np.ndarray, batched_data: Any, nlp: Any) -> list[tuple[float, np.ndarray | None, float]]:
-        """:meth:`values` of each member (``z`` of shape (B, n), every leaf of ``batched_data`` batched), from one
-        vmapped program, with each member's :func:`~.base.constraint_violation` of ``nlp`` computed for all at once:
-        a dispatch per member was a sixth of a 1024-member batch's wall time (Mould Fungicide)."""
+        """``(F(z), c(z), violation)`` of each member (``z`` (B, n), every leaf of ``batched_data`` batched), from one
+        vmapped program, with each member's :func:`~.base.constraint_violation` of ``nlp`` computed for all at once
+        (not a dispatch per member: measured in the solver-code note)."""
         self._evaluate_batch.compile(z, batched_data)
         f, c = (np.asarray(a) for a in self._evaluate_batch(z, batched_data))
         constrained = bool(self.problem.n_constraints)
@@ -107,9 +88,8 @@ class _Programs:
 
 def _across(batched: Callable[[Any, Any], Any], devices: list) -> Callable[[Any, Any], Any]:
     """``batched`` with the batch split evenly over ``devices`` (``jax.shard_map``; the last member repeated to fill
-    the last share, its copies dropped), each device running ``batched`` on its share at the same time. One device:
-    ``batched`` itself. On a CPU, JAX sees one device unless told otherwise before it starts
-    (``XLA_FLAGS=--xla_force_host_platform_device_count=N``: then each of N host threads runs its share)."""
+    the last share, its copies dropped), each device running ``batched`` on its share at the same time (on a CPU:
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N``). One device: ``batched`` itself."""
     if len(devices) < 2:
         return batched
     mesh = jax.sharding.Mesh(np.array(devices), ("members",))
@@ -148,13 +128,9 @@ def _pad(tree: Any, pad: int) -> Any:
 
 
 class AbstractPureSolver(abc.ABC):
-    """A solver whose solve is a pure JAX function ``(data, z0) -> output`` of a problem.
-
-    Subclasses provide the function (:meth:`pure_solve`), the default start (:meth:`start`) and the host-side
-    report of one member's output (:meth:`report`); this base provides :meth:`solve_fn` and :meth:`solve_batch`
-    (and ``_solve_single`` for the subclass's own ``solve``). Concrete pure solvers are frozen dataclasses, so the
-    compiled programs are cached per problem and solver configuration.
-    """
+    """A solver whose solve is a pure JAX function ``(data, z0) -> output`` of a problem: subclasses (frozen
+    dataclasses: the programs are cached per problem and configuration) provide :meth:`pure_solve`, :meth:`start`
+    and :meth:`report`; this base provides :meth:`solve_fn`, :meth:`solve_batch` and ``_solve_single``."""
 
     @abc.abstractmethod
     def pure_solve(self, problem: Any) -> Callable[[Any, Any], Any]:
@@ -164,11 +140,8 @@ class AbstractPureSolver(abc.ABC):
 
     @abc.abstractmethod
     def start(self, problem: Any, data: Any, z0: Any = None) -> np.ndarray:
-        """``z0`` checked and as a float64 host array, or the default start for one member's ``data`` when None.
-
-        Raises:
-            ValueError: ``z0`` of the wrong shape.
-        """
+        """``z0`` checked (``ValueError`` for the wrong shape) as a float64 host array, or the default start for one
+        member's ``data`` when None."""
 
     @abc.abstractmethod
     def report(self, problem: Any, output: Any, data: Any, compile_seconds: float, solve_seconds: float) -> Any:
@@ -195,9 +168,8 @@ class AbstractPureSolver(abc.ABC):
         return None
 
     def batch_stepper(self, problem: Any) -> Stepper | None:
-        """:meth:`pure_solve_batch`'s solve with its iteration apart, or None (the default). With a stepper, a
-        chunked vmapped batch keeps ``chunk`` members in flight and refills the places of those that stop
-        (:func:`~.stepper.queued`) instead of running chunks one after another."""
+        """:meth:`pure_solve_batch`'s solve with its iteration apart, or None (the default): with it, a chunked vmapped
+        batch is a queue (:func:`~.stepper.queued`) instead of chunks one after another."""
         return None
 
     def pure_solve_batch(self, problem: Any) -> Callable[[Any, Any], Any]:
@@ -208,30 +180,20 @@ class AbstractPureSolver(abc.ABC):
     # ---- written once ------------------------------------------------------------------------------------------
 
     def solve_fn(self, problem: Any) -> Callable[[Any, Any], Any]:
-        """The jit-compiled pure solve ``(data, z0) -> output`` (cached per problem and solver).
-
-        It can be ``vmap``-ed over ``data`` and ``z0``, called inside other jitted code, and differentiated in forward
-        mode; reverse mode works where the pure solve carries the implicit rule (the interior point's) and raises
-        otherwise (see the module docstring). It is a plain ``jax.jit``: pass data whose leaves are
-        arrays of fixed dtype (``default_data`` / ``batch_data`` build such data), or a Python float in place of an
-        array traces a second program."""
+        """The jit-compiled pure solve ``(data, z0) -> output`` (cached per problem and solver; differentiable as the
+        module docstring says), a plain ``jax.jit``: pass data whose leaves are arrays of fixed dtype (``default_data``
+        / ``batch_data`` build such data), or a Python float in place of an array traces a second program."""
         return self._programs(problem).jitted
 
     def solve_batch(self, problem: Any, batched_data: Any, z0: Any = None) -> list:
-        """Solve ``problem`` for a batch of ``data`` (every leaf with a leading batch axis) as one program.
+        """Solve ``problem`` for a batch of ``data`` (every leaf with a leading axis of size ``B``) as one program.
 
         With ``vmap`` the loop runs until every member has stopped; members that stop early are frozen by ``vmap``'s
         select, so each result equals its single solve, and each has its own status. With ``map``
         (:meth:`batch_strategy`) the program solves the members one after another.
 
-        Args:
-            problem: the problem (NLP, or system for an indirect method).
-            batched_data: ``data`` with a leading batch axis of size ``B`` on every leaf.
-            z0: None (each member's default start), one start for all, or one per member (leading axis ``B``).
-
-        Returns:
-            ``B`` results, one per member. Their ``compile_seconds`` and ``solve_seconds`` are the batch's totals
-            divided by ``B`` (so that sums over the list are the batch's totals).
+        ``z0``: None (each member's default start), one start for all, or one per member. Returns ``B`` results whose
+        ``compile_seconds`` and ``solve_seconds`` are the batch's totals divided by ``B`` (their sums are the totals).
         """
         programs = self._programs(problem)
         batched_data = canonical_data(batched_data)
@@ -311,7 +273,8 @@ class PureNLPSolver(AbstractPureSolver, AbstractNLPSolver):
         fns = self._compiled(nlp)
         z = np.asarray(out.z)
         if values is None:
-            objective, c = fns.values(z, data)
+            f, c = fns.evaluate(z, data)
+            objective, c = float(f), (np.asarray(c) if fns.problem.n_constraints else None)
             violation = constraint_violation(nlp, z, c)
         else:  # the batch's (batch_values)
             objective, c, violation = values

@@ -8,13 +8,13 @@ from typing import Any, ClassVar, final
 
 import jax
 import numpy as np
-import scipy.optimize
 
+from ..compilation import CompiledFunction
+from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import from_scipy_slsqp
 from .base import (
     AbstractNLPSolver,
-    CompiledFunction,
     ScaledProblem,
     cached,
     canonical_data,
@@ -38,11 +38,7 @@ class SLSQP(AbstractNLPSolver):
         h(w) + \\nabla h^\\top d = 0,\\quad g(w) + \\nabla g^\\top d \\ge 0,\\quad w^l \\le w + d \\le w^u
 
     (as a least-squares problem on the LDL factors of the BFGS matrix ``B``) and line-searches along ``d`` on an
-    L1 merit function. The NLP's two-sided constraints are split into SciPy's one-sided form:
-
-    * equalities ``h = c_E - c^l_E = 0`` where ``c^l == c^u``;
-    * inequalities ``g = (c^u - c)_U >= 0`` for each finite upper bound and ``(c - c^l)_L >= 0`` for each finite lower
-      bound of the remaining constraints.
+    L1 merit function. The NLP's constraints are split into SciPy's one-sided form (:func:`split_constraints`).
 
     Gradient and (dense) Jacobian are exact and jit-compiled once per NLP; SLSQP works in ``w = z / nlp.z_scale``
     like every solver (see :class:`ScaledProblem`). SLSQP is dense (``O(n^2)`` memory, ``O(n^3)`` per iteration):
@@ -53,9 +49,7 @@ class SLSQP(AbstractNLPSolver):
 
     Attributes:
         tol: SciPy's ``ftol``: the stopping accuracy on the objective change, the Lagrangian gradient and the sum
-            of constraint violations. On ill-conditioned problems ``z`` is only about ``sqrt(tol)`` accurate: with
-            1e-9 we measured 3e-6 (a 5-variable QP) and 1.4e-5 (Rosenbrock); 1e-11 gives 1e-7 on both, and 1e-12
-            can end in exit mode 8 once round-off dominates.
+            of constraint violations. On ill-conditioned problems ``z`` is only about ``sqrt(tol)`` accurate.
         max_iter: SciPy's ``maxiter``.
         constr_viol_tol: the largest constraint or bound violation a successful solve may have.
     """
@@ -73,6 +67,8 @@ class SLSQP(AbstractNLPSolver):
             raise ValueError("SLSQP: max_iter must be at least 1")
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
+        require_float64("SLSQP.solve")
+        import scipy.optimize  # here, not at the top: its import costs every other solver's first solve about 0.15 s
         fns = cached(nlp, "slsqp", lambda: _Derivatives(ScaledProblem.from_nlp(nlp)))
         problem = fns.problem
         data = canonical_data(data)
@@ -85,17 +81,17 @@ class SLSQP(AbstractNLPSolver):
         eq, upper, lower = split_constraints(problem.c_lower, problem.c_upper)
         c_lo, c_up = problem.c_lower, problem.c_upper
         if problem.n_constraints:
-            cj = _ConstraintCache(fns.constraints.executable(w0, data), fns.jacobian.executable(w0, data), data)
+            cw, jw = _Last(fns.constraints.executable(w0, data), data), _Last(fns.jacobian.executable(w0, data), data)
             if eq.size:
                 constraints.append(
-                    {"type": "eq", "fun": lambda w: cj.c(w)[eq] - c_lo[eq], "jac": lambda w: cj.jac(w)[eq]}
+                    {"type": "eq", "fun": lambda w: cw(w)[eq] - c_lo[eq], "jac": lambda w: jw(w)[eq]}
                 )
             if upper.size + lower.size:
                 constraints.append(
                     {
                         "type": "ineq",
-                        "fun": lambda w: np.concatenate([c_up[upper] - cj.c(w)[upper], cj.c(w)[lower] - c_lo[lower]]),
-                        "jac": lambda w: np.concatenate([-cj.jac(w)[upper], cj.jac(w)[lower]]),
+                        "fun": lambda w: np.concatenate([c_up[upper] - cw(w)[upper], cw(w)[lower] - c_lo[lower]]),
+                        "jac": lambda w: np.concatenate([-jw(w)[upper], jw(w)[lower]]),
                     }
                 )
 
@@ -169,21 +165,14 @@ class _Derivatives:
         return seconds
 
 
-class _ConstraintCache:
-    """``c(w)`` and ``dc/dw(w)`` for the last ``w``: SciPy asks for the equality and inequality parts separately."""
+class _Last:
+    """``fn(w, data)`` of the last ``w``: SciPy asks for the equality and inequality parts of ``c`` separately."""
 
-    def __init__(self, c, jac, data):
-        self._c_fn, self._jac_fn, self._data = c, jac, data
-        self._c_key = self._jac_key = None
+    def __init__(self, fn, data):
+        self._fn, self._data, self._key = fn, data, None
 
-    def c(self, w):
+    def __call__(self, w):
         key = np.asarray(w).tobytes()
-        if key != self._c_key:
-            self._c_value, self._c_key = np.asarray(self._c_fn(w, self._data)), key
-        return self._c_value
-
-    def jac(self, w):
-        key = np.asarray(w).tobytes()
-        if key != self._jac_key:
-            self._jac_value, self._jac_key = np.asarray(self._jac_fn(w, self._data)), key
-        return self._jac_value
+        if key != self._key:
+            self._value, self._key = np.asarray(self._fn(w, self._data)), key
+        return self._value

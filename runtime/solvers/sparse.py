@@ -36,15 +36,8 @@ __all__ = [
 
 
 def color_columns(rows: np.ndarray, cols: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """A greedy colouring of the columns of a sparsity pattern such that no two columns of one colour share a row.
-
-    Args:
-        rows, cols: the structurally non-zero entries.
-        shape: (n_rows, n_cols).
-
-    Returns:
-        colours (n_cols,) int, numbered from 0.
-    """
+    """A greedy colouring (``(n_cols,)`` ints from 0) of the columns of the pattern ``(rows, cols)`` of ``shape``
+    such that no two columns of one colour share a row."""
     n_rows, n_cols = shape
     pattern = sp.csr_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=shape)
     # Columns j, k conflict iff some row holds both: (P^T P)_{jk} != 0.
@@ -89,11 +82,9 @@ def compressed_jacobian_fn(
 def hvp_batch_fn(grad_fn: Callable[..., Any]) -> Callable[..., Any]:
     """``(w, seeds, *args) -> seeds @ H``: one forward-over-reverse Hessian-vector product per row of ``seeds``.
 
-    ``H`` is the Jacobian of ``grad_fn(w, *args)`` (symmetric when ``grad_fn`` is a gradient). The seeds are an
-    argument, not a constant, so one compiled program of a fixed batch serves both the one-off pattern detection
-    (identity seeds) and every later evaluation (colour seeds): a second-order program is the most expensive thing
-    a solver compiles.
-    """
+    ``H`` is the Jacobian of ``grad_fn(w, *args)``. The seeds are an argument, not a constant, so one compiled program
+    serves both the pattern detection (identity seeds) and every later evaluation (colour seeds): a second-order
+    program is the most expensive thing a solver compiles."""
 
     def hvps(w, seeds, *args):
         return jax.vmap(lambda v: jax.jvp(lambda w_: grad_fn(w_, *args), (w,), (v,))[1])(seeds)
@@ -115,9 +106,8 @@ def dense_from_hvps(hvps: Callable[[np.ndarray], np.ndarray], n: int, batch: int
 class HessianColouring:
     """Recover the entries ``(rows, cols)`` of a symmetric Hessian from products with colour seeds.
 
-    The colouring is done on the symmetric completion of the pattern (so ``(rows, cols)`` may be the lower triangle
-    only): columns of one colour share no row of the full matrix, and each requested entry is read off directly.
-    The ``K`` colour seeds are padded to whole batches of ``batch`` rows for :func:`hvp_batch_fn`'s program.
+    The colouring is done on the symmetric completion of the pattern (``(rows, cols)`` may be the lower triangle), and
+    the ``K`` colour seeds are padded to whole batches of ``batch`` rows for :func:`hvp_batch_fn`'s program.
 
     A *dense* variable (a free final time multiplies every step, so its row and column touch everything) would
     conflict with every other column and force one colour per variable. Such a variable gets a seed of its own,
@@ -153,10 +143,7 @@ def hessian_structure(dense_hessians: list[np.ndarray], n: int) -> tuple[np.ndar
 
     Samples that contain a NaN or an infinity are skipped (a NaN spreads through the whole reverse pass and would
     make the pattern dense); when no sample is finite the dense lower triangle is returned, which is always
-    correct. The diagonal is always included: it is cheap and IPOPT regularises on it.
-
-    Returns:
-        (rows, cols) with rows >= cols, sorted row-major.
+    correct. The diagonal is always included: it is cheap and IPOPT regularises on it. ``(rows, cols)``, row-major.
     """
     finite = [h for h in dense_hessians if np.all(np.isfinite(h))]
     if finite:

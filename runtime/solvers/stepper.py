@@ -1,12 +1,9 @@
 r"""A pure solve with its iteration apart (:class:`Stepper`), and a batch that keeps a fixed number of members in
 flight, each finished member's place taken by the next waiting one (:func:`queued`).
 
-A vmapped ``lax.while_loop`` runs until its slowest member stops, and the members that stopped early are computed
-and thrown away until then (``vmap``'s select). Solved in chunks one after another, a batch pays each chunk's slowest
-member: 1024 Epidemic NLPs (InteriorPoint, published setting) took 14 to 20 iterations, median 17, and chunks of 48
-spent 14 % of their member-iterations on members that had already stopped. A queue of ``slots`` members spends
-them only in the last few iterations, when no member is left waiting. Every member still runs exactly the
-iterations of its own solve (a vmapped lane does not see the others), so the results equal the chunked ones.
+A vmapped ``lax.while_loop`` runs until its slowest member stops (the others computed and thrown away until then);
+a queue pays that only in the last few iterations, when no member is left waiting (the interior point's README). Each
+member still runs exactly the iterations of its own solve, so the results equal the chunked ones.
 """
 
 from __future__ import annotations
@@ -41,10 +38,9 @@ class Stepper(NamedTuple):
 
 
 def queued(stepper: Stepper, slots: int) -> Callable[[Any, Any], Any]:
-    """``jax.vmap(stepper.solve)`` for a batch ``(data, z0)`` (leading axis ``B`` on every leaf), computed with at most
-    ``slots`` members vmapped at a time: after each vmapped iteration the members that stopped write their output and
-    the next waiting members begin in their places; the loop ends when every member has stopped. One program; a
-    batch of at most ``slots`` members is plainly vmapped."""
+    """``jax.vmap(stepper.solve)`` for a batch ``(data, z0)`` as one program with at most ``slots`` members vmapped at a
+    time: after each vmapped iteration the members that stopped write their output and the next waiting members
+    begin in their places, until every member has stopped."""
     def run(data, z0):
         size = z0.shape[0]
         if size <= slots:

@@ -13,6 +13,9 @@ from .._command_args import first_error, usage
 
 __all__ = ["add_parser", "run"]
 
+# The config's fields as this command spells them, in its messages.
+_SPELLED = {"methods": ("--method",), "systems": ("the systems (NAME|PATH)",)}
+
 
 def add_parser(sub) -> None:
     from .backends import BACKENDS
@@ -42,9 +45,10 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..compilation.jax_cache import compilation_cache_dir as resolve_cache_dir
+    from ..configs import usage_message
     from .backends import BACKENDS
     from .backends.base import BackendUnavailable
-    from .config import SweepConfig
+    from .config import SweepConfig, parse_method
     from .run import run_sweep
     from .table import markdown, write_tables
 
@@ -59,8 +63,14 @@ def run(args) -> int:
         return usage("sweep", error)
     cache_dir = None if args.no_cache else resolve_cache_dir(args.cache_dir)
     try:
-        config = SweepConfig(systems=args.systems, methods=args.methods or ["solve"], seeds=args.seeds,
-                             cache_dir=cache_dir)
+        methods = [parse_method(text) for text in args.methods or ["solve"]]
+    except ValueError as exc:
+        return usage("sweep", f"--method: {exc}")
+    try:
+        config = SweepConfig(systems=args.systems, methods=methods, seeds=args.seeds, cache_dir=cache_dir)
+    except ValueError as exc:
+        return usage("sweep", usage_message(exc, SweepConfig, _SPELLED))
+    try:
         options = {"address": args.address} if args.backend == "ray" else {}
         if args.workers is not None:
             options["workers"] = args.workers

@@ -10,7 +10,7 @@ from typing import Any
 
 # One folder for the workers and the commands; `~` expanded per node.
 from ..compilation.jax_cache import DEFAULT_CACHE_DIR
-from ..configs import parse_value
+from ..configs import FieldError, parse_value
 from .kinds import KINDS
 
 __all__ = ["DEFAULT_CACHE_DIR", "Method", "SweepConfig", "parse_method"]
@@ -85,7 +85,8 @@ class SweepConfig:
         cache_dir: the JAX persistent compilation cache every worker uses (unless its process already set one);
             None: none. See the README.
 
-    ``ValueError``: an empty or repeated system, method name or seed, or a bad method.
+    ``ValueError``: a bad method; :class:`~myriad.runtime.configs.FieldError` (naming the field): an empty or
+    repeated system, method name or seed.
     """
 
     systems: tuple[str, ...]
@@ -99,14 +100,15 @@ class SweepConfig:
         seeds = tuple(self.seeds)
         for what, items in (("systems", systems), ("methods", methods), ("seeds", seeds)):
             if not items:
-                raise ValueError(f"a sweep needs at least one of its {what}")
-        for what, items in (("system", systems), ("method name", [m.name for m in methods]), ("seed", seeds)):
+                raise FieldError(f"{what} needs at least one value", what)
+        for what, items in (("systems", systems), ("methods", [m.name for m in methods]), ("seeds", seeds)):
             repeated = sorted({str(x) for x in items if list(items).count(x) > 1})
             if repeated:
-                raise ValueError(f"each {what} once: repeated {', '.join(repeated)}")
+                fix = "; give each method its own name, NAME=KIND[:...]" if what == "methods" else ""
+                raise FieldError(f"{what} must differ: repeated {', '.join(repeated)}{fix}", what)
         bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0]
         if bad:
-            raise ValueError(f"seeds must be integers >= 0, got {bad}")
+            raise FieldError(f"seeds must be integers >= 0, got {', '.join(map(str, bad))}", "seeds")
         object.__setattr__(self, "systems", systems)
         object.__setattr__(self, "methods", methods)
         object.__setattr__(self, "seeds", seeds)

@@ -20,7 +20,8 @@ def run_sweep(config: SweepConfig, backend: AbstractBackend | None = None, *,
               progress: bool | None = None) -> list[dict[str, Any]]:
     """Every task's record (see :mod:`.tasks`; a failed task's has ``status`` ``"failed"`` or ``"error"``, nothing is
     raised for it), sorted by ``index`` (systems, then methods, then seeds). ``backend``: default
-    :class:`SerialBackend`, in this process; ``progress``: a tqdm bar on stderr (None: when stderr is a terminal)."""
+    :class:`SerialBackend`, in this process; ``progress``: True a tqdm bar on stderr, False nothing, None a bar when
+    stderr is a terminal, else a plain line every 10 s ($MYRIAD_PROGRESS_SECONDS) and one at the end."""
     backend = backend or SerialBackend()
     tasks = config.tasks()
     records, bad = [], 0

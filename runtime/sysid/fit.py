@@ -315,9 +315,10 @@ def fit(model: AbstractModel, dataset: Any, config: FitConfig = FitConfig(), *, 
         checkpoint_dir: str | Path | None = None, resume: bool = False, progress: bool | None = None) -> FitResult:
     """Fit ``model`` to ``dataset.train``, selecting on ``dataset.validation`` (the training set where that is empty),
     from ``theta0`` (default: ``model.init_params`` with a key from ``config.seed``); ``checkpoint_dir``: a folder for
-    ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; ``progress``: a tqdm bar on stderr (None: when
-    stderr is a terminal). TypeError or ValueError for a bad argument (all before any work); ``CheckpointMismatch``
-    when resuming from another dataset or configuration."""
+    ``checkpoint.npz`` (+ ``.json``), overwritten unless resuming; ``progress``: True a tqdm bar on stderr, False
+    nothing, None a bar when stderr is a terminal, else a plain line every 10 s ($MYRIAD_PROGRESS_SECONDS) and one at
+    the end. TypeError or ValueError for a bad argument (all before any work); ``CheckpointMismatch`` when resuming
+    from another dataset or configuration."""
     start, traces = time.perf_counter(), sum(TRACES.values())
     n_steps, stages = _check(model, dataset, config, theta0, checkpoint_dir, resume, progress)
     run = _FitRun(model, dataset, config, theta0, n_steps, stages)

@@ -21,7 +21,7 @@ import numpy as np
 from ..learn.dataset import Dataset, Sampling, Trajectories, make_dataset
 from ..learn.evaluate import Evaluation, evaluate
 from ..learn.loop import Stop
-from ..learn.models import Parametric, make_model, model_class
+from ..learn.models import Parametric, make_model, model_class, network_error
 from ..learn.reaim import Reaim, observe, reaim
 from ..loader import load
 from ..solve import solve
@@ -110,11 +110,9 @@ class SysidConfig:
         elif epochs is not None and getattr(self.fit, "epochs", None) != epochs:
             raise ValueError(f"SysidConfig: epochs ({epochs}) sets the default fit's; the fit given says "
                              f"{getattr(self.fit, 'epochs', None)} (set fit.epochs instead)")
-        hidden = tuple(self.hidden) if isinstance(self.hidden, (list, tuple)) else self.hidden
-        if not (isinstance(hidden, tuple) and hidden
-                and all(isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in hidden)):
-            raise ValueError(f"SysidConfig: hidden must be a list of layer widths >= 1, got {self.hidden!r}")
-        object.__setattr__(self, "hidden", hidden)
+        if error := network_error(self.hidden, self.activation):
+            raise ValueError(f"SysidConfig: {error}")
+        object.__setattr__(self, "hidden", tuple(int(w) for w in self.hidden))
         if self.refit is not None and not isinstance(self.refit, FitConfig):
             raise ValueError(f"SysidConfig: refit must be a FitConfig or None, got {self.refit!r}")
         if isinstance(self.polish, str) and self.polish == "default":

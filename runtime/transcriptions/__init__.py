@@ -4,13 +4,9 @@ and is re-exported here.
 Look one up by name with ``TRANSCRIPTIONS["hermite_simpson"](intervals=50)``; see README.md in this folder to add one.
 """
 
-from ..data import default_data as default_data
+import importlib
 
-# The sweep lives in runtime/indirect; re-exported (with its registry) so that old imports keep working.
-from ..indirect import INDIRECT as INDIRECT
-from ..indirect import ForwardBackwardSweep as ForwardBackwardSweep
-from ..indirect import SweepResult as SweepResult
-from ..indirect import SweepState as SweepState
+from ..data import default_data as default_data
 from .base import AbstractTranscription as AbstractTranscription
 from .hermite_simpson import HermiteSimpson as HermiteSimpson
 from .multiple_shooting import MultipleShooting as MultipleShooting
@@ -26,6 +22,17 @@ TRANSCRIPTIONS: dict[str, type[AbstractTranscription]] = {
     "trapezoidal": Trapezoidal,
     "hermite_simpson": HermiteSimpson,
 }
+
+# The sweep lives in runtime/indirect; re-exported (with its registry) so that old imports keep working, on first use:
+# runtime/indirect imports transcription modules, so an eager import here is a cycle when indirect is imported first.
+_FROM_INDIRECT = ("INDIRECT", "ForwardBackwardSweep", "SweepResult", "SweepState")
+
+
+def __getattr__(name: str):
+    if name not in _FROM_INDIRECT:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module("..indirect", __name__), name)
+
 
 __all__ = [
     "AbstractTranscription",

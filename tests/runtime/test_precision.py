@@ -13,14 +13,18 @@ import pytest
 
 _SCRIPT = """
 import jax
-from myriad.runtime import Extragradient, SingleShooting, load, solve, solve_batch
+from myriad.runtime import SLSQP, Extragradient, ForwardBackwardSweep, Ipopt, SingleShooting, load, solve, solve_batch
 from myriad.runtime.data import default_data
 from myriad.runtime.solve import transcribe
 vdp = load("van_der_pol")
+nlp, data = transcribe(vdp, SingleShooting(intervals=10)), default_data(vdp)
 for entry, call in (("solve", lambda: solve(vdp)),
                     ("solve_batch", lambda: solve_batch(vdp, x0=[[1.0, 0.0]])),
                     ("the pure solver extragradient", lambda: Extragradient().solve_fn(
-                        transcribe(vdp, SingleShooting(intervals=10)))(default_data(vdp), None))):
+                        nlp)(data, None)),
+                    ("Ipopt.solve", lambda: Ipopt().solve(nlp, data)),
+                    ("SLSQP.solve", lambda: SLSQP().solve(nlp, data)),
+                    ("ForwardBackwardSweep.solve", lambda: ForwardBackwardSweep().solve(vdp))):
     try:
         call()
     except RuntimeError as e:
@@ -40,7 +44,8 @@ def _fresh(script: str) -> str:
 
 def test_solve_in_a_fresh_float32_process_refuses_with_the_fix():
     out = _fresh(_SCRIPT)
-    for entry in ("solve", "solve_batch", "the pure solver extragradient"):
+    for entry in ("solve", "solve_batch", "the pure solver extragradient", "Ipopt.solve", "SLSQP.solve",
+                  "ForwardBackwardSweep.solve"):
         line = next(line for line in out.splitlines() if line.startswith(entry + " "))
         assert "REFUSED" in line, out
         assert f"{entry} needs float64" in line

@@ -13,12 +13,13 @@ from .base import AbstractModel as AbstractModel
 from .learned_system import LearnedSystem as LearnedSystem
 from .neural_ode import ACTIVATIONS as ACTIVATIONS
 from .neural_ode import NeuralODE as NeuralODE
+from .neural_ode import network_error as network_error
 from .parametric import Parametric as Parametric
 
 MODELS: dict[str, type[AbstractModel]] = {cls.label: cls for cls in (Parametric, NeuralODE)}
 
 __all__ = ["AbstractModel", "ACTIVATIONS", "LearnedSystem", "MODELS", "NeuralODE", "Parametric", "make_model",
-           "model_class"]
+           "model_class", "network_error"]
 
 
 def model_class(name: str, where: str = "model") -> type[AbstractModel]:

@@ -29,7 +29,7 @@ import numpy as np
 
 from .base import AbstractModel, float_dtype
 
-__all__ = ["NeuralODE", "ACTIVATIONS"]
+__all__ = ["NeuralODE", "ACTIVATIONS", "network_error"]
 
 ACTIVATIONS = {
     "sigmoid": jax.nn.sigmoid,
@@ -37,6 +37,18 @@ ACTIVATIONS = {
     "tanh": jnp.tanh,
     "relu": jax.nn.relu,
 }
+
+
+
+def network_error(hidden: Any, activation: Any) -> str | None:
+    """Why a learner's config cannot make a Neural ODE of these (None if it can), naming the fields ``hidden`` and
+    ``activation``: checked when the config is built, before any work, whichever model it learns."""
+    widths = tuple(hidden) if isinstance(hidden, (list, tuple)) else None
+    if not widths or not all(isinstance(w, (int, np.integer)) and not isinstance(w, bool) and w >= 1 for w in widths):
+        return f"hidden must be a list of layer widths >= 1, got {hidden!r}"
+    if not isinstance(activation, str) or activation not in ACTIVATIONS:
+        return f"activation must be one of {', '.join(ACTIVATIONS)}, got {activation!r}"
+    return None
 
 
 @dataclasses.dataclass(frozen=True)

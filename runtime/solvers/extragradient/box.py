@@ -1,15 +1,6 @@
-r"""The variable box ``lo <= w <= hi``: projection, or a sigmoid reparametrisation of the doubly bounded variables.
-
-The solver's primal iterate is a parameter vector ``p`` with ``w = to_w(p)``. With ``bounds="projection"``, ``p = w``
-and every step is followed by the clip :meth:`Box.project`. With ``bounds="sigmoid"``, each variable whose bounds are
-both finite is
-
-.. math::
-    w = l + (u - l)\,\sigma(p), \qquad \frac{\partial w}{\partial p} = (u - l)\,\sigma(p)\,(1 - \sigma(p)),
-
-so it never leaves the box and is never clipped; variables with one or no finite bound keep ``p = w`` and are clipped.
-Why not always the sigmoid: it never reaches a bound, so a solution on a bound is approached only asymptotically.
-Measurements: docs/notes/extragradient-tuning.md ("Bounds").
+r"""The variable box ``lo <= w <= hi``: projection, or a sigmoid reparametrisation of the doubly bounded variables
+(``Extragradient``'s "Bounds"). The solver's primal iterate is ``p`` with ``w = to_w(p)``; with the projection
+``p = w``. Measurements: docs/notes/extragradient-tuning.md ("Bounds").
 """
 
 from __future__ import annotations
@@ -27,14 +18,8 @@ _SIGMOID_MARGIN = 1e-2
 
 
 class Box(NamedTuple):
-    """The box in scaled variables and the map ``p -> w`` (built once per problem; its arrays are constants).
-
-    Attributes:
-        lo, hi: the bounds on ``w`` (n,), possibly infinite.
-        boxed: (n,) bool, the variables that go through the sigmoid (all False with ``bounds="projection"``).
-        width, base: ``u - l`` and ``l`` where ``boxed``, 1 and 0 elsewhere.
-        sigmoid: ``bounds == "sigmoid"`` (static).
-    """
+    """The box in scaled variables (``lo``, ``hi``, possibly infinite) and the map ``p -> w``: ``boxed`` variables go
+    through the sigmoid (none with ``bounds="projection"``), ``width`` and ``base`` are ``u - l`` and ``l`` there."""
 
     lo: jax.Array
     hi: jax.Array

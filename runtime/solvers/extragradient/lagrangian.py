@@ -1,14 +1,8 @@
 r"""The augmented Lagrangian's derivatives and the KKT test at one primal-dual point.
 
 With equalities ``h(w) = c_E(w) - c^l_E = 0`` and one-sided inequalities ``g(w) <= 0`` (``c_U - c^u_U`` for each finite
-upper bound and ``c^l_L - c_L`` for each finite lower bound of the remaining rows, see
-:func:`~myriad.runtime.solvers.base.split_constraints`), all on the scaled rows ``r * c`` (see :mod:`.scaling`):
-
-.. math::
-    L_\rho(w, \lambda, \mu) = \sigma F(w) + \lambda^\top h + \frac{\rho}{2}\lVert h\rVert^2
-        + \frac{1}{2\rho}\sum_i \big(\max(0, \mu_i + \rho g_i)^2 - \mu_i^2\big)
-
-(``rho = 0``: the plain Lagrangian ``sigma F + lambda^T h + mu^T g``). The multiplier estimates
+upper bound and ``c^l_L - c_L`` for each finite lower bound of the remaining rows), all on the scaled rows ``r * c``
+(:mod:`.scaling`), ``L_rho`` is ``Extragradient``'s augmented Lagrangian of ``sigma F``. The multiplier estimates
 
 .. math::
     y = \big(\lambda + \rho h,\ \max(0, \mu + \rho g)\big), \qquad \nabla_w L_\rho = \sigma \nabla F + J^\top y
@@ -51,14 +45,8 @@ class Point(NamedTuple):
 
 
 class Lagrangian(NamedTuple):
-    """The static pieces of one scaled problem that :meth:`evaluate` needs (all indices static, host arrays).
-
-    Attributes:
-        f, c_fn: the scaled objective and constraints ``(w, data) -> ...``; m: the number of constraints.
-        eq_idx, up_idx, lo_idx: rows of the equalities and of the finite upper and lower inequality bounds.
-        c_lo, c_up: the constraint bounds (host arrays).
-        box: the variable box and the map ``p -> w``; penalty: the penalty schedule (for the dual steps' units).
-    """
+    """The static pieces of one scaled problem that :meth:`evaluate` needs (host arrays; the row indices of
+    :func:`~myriad.runtime.solvers.base.split_constraints`)."""
 
     f: Callable
     c_fn: Callable | None

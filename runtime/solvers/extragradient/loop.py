@@ -1,18 +1,7 @@
-r"""The iteration: Korpelevich's extragradient step with optax step rules, as a stepper (:class:`ExtragradientStepper`)
-whose ``lax.while_loop`` is the pure solve.
-
-Writing ``v = (p, lambda, mu)`` and ``G(v) = (grad_p L, -grad_lambda L, -grad_mu L)`` (see :mod:`.lagrangian`), one
-iteration is
-
-.. math::
-    v_{k+1/2} = \Pi\big(v_k + T(G(v_k))\big), \qquad v_{k+1} = \Pi\big(v_k + T(G(v_{k+1/2}))\big)
-
-with the optax step rules ``T`` (primal and dual) in place of a fixed step: the gradient is evaluated at the
-extrapolated point but the step is taken from the original point, which damps the rotation that makes plain
-descent-ascent cycle around saddle points. ``Pi`` projects ``mu`` onto ``mu >= 0`` and ``p`` onto its box (see
-:mod:`.box`). The optimiser states are threaded through both half-steps (restarting the look-ahead from the previous
-state measured worse). The loop stops when the KKT residual is at most ``tol``, at ``max_iter``, or at a non-finite
-point. Measurements: docs/notes/extragradient-tuning.md.
+r"""The iteration: Korpelevich's extragradient step with optax step rules (``Extragradient``'s docstring has the
+mathematics), as a stepper (:class:`ExtragradientStepper`) whose ``lax.while_loop`` is the pure solve. ``Pi`` projects
+``mu`` onto ``mu >= 0`` and ``p`` onto its box (:mod:`.box`). The loop stops when the KKT residual is at most ``tol``,
+at ``max_iter``, or at a non-finite point.
 
 The same stepper is the end-to-end learner's unrolled planner (a ``lax.scan`` of :meth:`ExtragradientStepper.iterate`,
 :mod:`myriad.runtime.e2e.planner`), so a planner step is a solver iteration by construction, not by copy.
@@ -59,12 +48,9 @@ class ExtragradientSolution(NamedTuple):
 
 
 def optax_promotion():
-    """Standard dtype promotion for optax's own arithmetic only.
-
-    NOTE: optax mixes Python floats with its int32 step counter (``b1 ** count`` in adam's bias correction), which
-    ``jax_numpy_dtype_promotion="strict"`` (our test setting) rejects. The context applies while tracing the step
-    rules only; the NLP's functions stay under whatever promotion the caller set.
-    """
+    """Standard dtype promotion while tracing the step rules only: optax mixes Python floats with its int32 step
+    counter (``b1 ** count`` in adam's bias correction), which ``jax_numpy_dtype_promotion="strict"`` (our test
+    setting) rejects; the NLP's functions stay under whatever promotion the caller set."""
     return jax.numpy_dtype_promotion("standard")
 
 
@@ -77,15 +63,10 @@ def step_rules(step: Any, dual_step: Any) -> tuple[optax.GradientTransformation,
 
 
 class ExtragradientState(NamedTuple):
-    """The whole solver state between iterations (a pytree of arrays; warm-starting from it continues the solve).
-
-    Attributes:
-        p, duals: the primal parameters (``w = box.to_w(p)``, ``z = w * z_scale``) and ``(lambda, mu_u, mu_l)``.
-        state_p, state_d: the primal and dual optax states.
-        rho, v_ref: the penalty and the violation at its last check; k: iterations taken since :meth:`begin`.
-        scales: the objective, column and row scales measured at :meth:`begin` (held fixed in between).
-        point: the Lagrangian's derivatives at ``(p, duals)`` (for the data of the last iteration).
-    """
+    """The whole solver state between iterations (warm-starting from it continues the solve): the primal parameters
+    ``p`` (``w = box.to_w(p)``), ``duals = (lambda, mu_u, mu_l)``, their optax states, the penalty ``rho`` and the
+    violation ``v_ref`` at its last check, ``k`` iterations, the scales measured at :meth:`begin`, and the
+    Lagrangian's derivatives at ``(p, duals)``."""
 
     p: jax.Array
     duals: tuple
@@ -99,13 +80,9 @@ class ExtragradientState(NamedTuple):
 
 
 class ExtragradientStepper:
-    """The extragradient solve of one scaled problem and configuration, its iteration apart (built once per pair).
-
-    :meth:`begin`, :meth:`step`, :meth:`running` and :meth:`end` are a :class:`~..stepper.Stepper`
-    (:attr:`stepper`, which a batch queue drives); :meth:`iterate` is one iteration whatever the state (the unrolled
-    planner's fixed number of steps runs past convergence), and the pure solve (:meth:`solve`) is the ``while_loop``
-    of :meth:`iterate` while :meth:`running`. :meth:`refresh` re-evaluates a carried state's point for new data.
-    Nothing is jitted and no index is traced: all sizes are static.
+    """The extragradient solve of one scaled problem and configuration, its iteration apart (built once per pair;
+    nothing jitted, all sizes static): a :class:`~..stepper.Stepper` (:attr:`stepper`), and :meth:`iterate`, one
+    iteration whatever the state (the unrolled planner runs past convergence), whose ``while_loop`` is :meth:`solve`.
     """
 
     def __init__(self, problem: ScaledProblem, solver: Extragradient):

@@ -1,19 +1,7 @@
-r"""The augmented-Lagrangian penalty ``rho``: grown on stalls of the constraint violation, and the dual step's units.
-
-Every ``_PENALTY_CHECK`` (2000) iterations, the violation ``v`` is compared with its value ``v_ref`` at the previous
-check (the start, for the first):
-
-.. math::
-    \rho \leftarrow \min(\gamma \rho,\ \rho_{\max}) \quad \text{if}\quad v > 0.9\, v_{\mathrm{ref}}
-        \ \text{and}\ v > \mathrm{tol}, \qquad v_{\mathrm{ref}} \leftarrow v,
-
-i.e. ``rho`` grows by ``penalty_growth`` (``gamma``) whenever the violation fell by less than 10% since the last check.
-The dual "gradients" are multiplied by ``rho / rho_0`` (:meth:`PenaltySchedule.dual_ratio`), so the dual steps grow
-with the penalty as in the method of multipliers, ``lambda += rho h``.
-
-Why on stalls only: a small fixed ``rho`` stalls transcribed OCPs (many defect equalities) short of feasibility, and a
-large one from the start stalls HS71; growing it only when the violation stalls solves both. Measurements, and the
-schedules that were tried: docs/notes/extragradient-tuning.md ("Penalty schedule").
+r"""The augmented-Lagrangian penalty ``rho`` (``Extragradient``'s "Penalty"): every ``_PENALTY_CHECK`` iterations,
+``rho <- min(gamma rho, rho_max)`` if the violation fell by less than 10% since the last check and is above ``tol``;
+the dual "gradients" are multiplied by ``rho / rho_0`` (:meth:`PenaltySchedule.dual_ratio`), as in the method of
+multipliers. Measurements, and the schedules that were tried: docs/notes/extragradient-tuning.md ("Penalty schedule").
 """
 
 from __future__ import annotations
@@ -33,15 +21,8 @@ _STALL_RATIO = 0.9
 
 
 class PenaltySchedule(NamedTuple):
-    """The penalty's static schedule (Python numbers, fixed per solver configuration).
-
-    Attributes:
-        rho0: the initial penalty ``penalty >= 0`` (0: the plain Lagrangian, and the dual steps are never rescaled).
-        growth: ``penalty_growth >= 1`` (1 keeps ``rho`` fixed).
-        rho_max: ``penalty_max``, the cap.
-        tol: no growth once the violation is at most this (the solver's KKT tolerance).
-        every: iterations between checks.
-    """
+    """The penalty's static schedule (the solver's ``penalty``, ``penalty_growth`` and ``penalty_max``); no growth
+    once the violation is at most ``tol``, a check every ``every`` iterations."""
 
     rho0: float
     growth: float

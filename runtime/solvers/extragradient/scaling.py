@@ -1,31 +1,17 @@
-r"""Per-solve scale factors measured at the start: the objective factor ``sigma``, column ``d`` and row ``r`` scales.
+r"""Per-solve scale factors measured at the start (``Extragradient``'s "Scaling"): the objective factor ``sigma``,
+column ``d`` and row ``r`` scales, computed inside the jitted solve from the start ``w0`` (so they may depend on
+``data``). All three are changes of variables or units: the KKT test, the violation and the reported multipliers are
+the same with or without them.
 
-All three are changes of variables (or of units) computed inside the jitted solve from the start ``w0`` (so they may
-depend on ``data``); the KKT test, the violation and the reported multipliers are the same quantities with or without
-them.
+.. math::
+    \sigma = \min\big(1,\ 100 / \lVert d \odot \nabla F(w_0) \rVert_\infty\big),\qquad
+    d_j = \max(|w_{0,j}|, 10^{-4}),\qquad
+    r_i = \operatorname{clip}\Big(1 \big/ \max_j |\partial c_i / \partial w_j(w_0)|\, d_j,\ 10^{-4}, 10^{4}\Big)
 
-* Objective (IPOPT's gradient-based rule, ``nlp_scaling_max_gradient``): the solver minimises ``sigma F`` with
-
-  .. math::
-      \sigma = \min\big(1,\ 100 / \lVert d \odot \nabla F(w_0) \rVert_\infty\big)
-
-  (1 when that gradient is not finite), so a steep objective does not ask the duals for huge multipliers.
-* ``scaling="guess"``: a column scale for the step rules and a row scale for the Lagrangian,
-
-  .. math::
-      d_j = \max(|w_{0,j}|, 10^{-4})\ (1 \text{ where } w_{0,j} = 0 \text{ or not finite, or } j \text{ boxed}),
-      \qquad r_i = \operatorname{clip}\Big(1 \big/ \max_j |\partial c_i / \partial w_j(w_0)|\, d_j,\
-          10^{-4}, 10^{4}\Big)
-
-  (``r_i = 1`` where that maximum is 0 or not finite). The primal step rule acts on ``v = w / d``, so AMSGrad's steps
-  (about ``lr`` in ``v``) are proportional to each variable's magnitude instead of to the nominal ``z_scale``; ``r``
-  equilibrates the Jacobian in ``v`` to a largest entry of 1 per row, which turns the huge multipliers of rows whose
-  variables are small into ``O(1)`` ones that the dual ascent can reach. The sigmoid's parameter is not ``w`` (its
-  scale is the logit's), so boxed variables keep ``d = 1``.
-* ``scaling="bounds"``: ``d = 1`` and ``r = 1``; only ``z_scale``.
-
-The scales are only as good as the start's magnitudes. Measurements: docs/notes/extragradient-tuning.md ("Column and
-row scaling", "Objective scaling").
+with ``sigma = 1`` where that gradient is not finite, ``d_j = 1`` where ``w_{0,j}`` is 0 or not finite or ``j`` is
+boxed (the sigmoid's parameter is not ``w``), ``r_i = 1`` where the maximum is 0 or not finite, and ``d = r = 1`` with
+``scaling="bounds"``. Measurements: docs/notes/extragradient-tuning.md ("Column and row scaling", "Objective
+scaling").
 """
 
 from __future__ import annotations
@@ -79,14 +65,8 @@ def _row_max_abs(c_fn: Callable, w: jax.Array, d: jax.Array, data: Any, m: int) 
 
 def make_scales(f: Callable, c_fn: Callable | None, w0: jax.Array, data: Any, dtype: Any, *, boxed: jax.Array,
                 m: int, from_guess: bool, scale_objective: bool) -> Scales:
-    """The :class:`Scales` at the start ``w0`` (in ``w``, after the box), as in the module docstring.
-
-    Args:
-        f, c_fn: the scaled objective and constraints ``(w, data) -> ...`` (``c_fn`` unused when ``m == 0``).
-        w0: the start (n,); data: the problem data; dtype: the dtype of the returned scales.
-        boxed: (n,) bool, the variables behind the sigmoid (see :class:`~.box.Box`); they keep ``d = 1``.
-        m: the number of constraints; from_guess: ``scaling == "guess"``; scale_objective: compute ``sigma`` (else 1).
-    """
+    """The :class:`Scales` at the start ``w0`` (in ``w``, after the box) of the scaled objective ``f`` and constraints
+    ``c_fn`` (unused when ``m == 0``), as in the module docstring; ``boxed``: the variables behind the sigmoid."""
     n = w0.shape[0]
     ones_n, ones_m = jnp.ones(n, dtype), jnp.ones(m, dtype)
     if from_guess:

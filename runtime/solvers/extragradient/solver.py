@@ -52,33 +52,25 @@ class Extragradient(PureNLPSolver):
     The look-ahead damps the rotation that makes plain descent-ascent cycle around saddle points. ``Pi`` projects
     ``mu`` onto ``mu >= 0`` (projected multipliers, no slack variables) and the variables onto their box.
 
-    Convergence is the KKT test at the current point, on the multiplier estimates ``y = (lambda + rho h,
-    max(0, mu + rho g))``: projected stationarity, feasibility and complementarity all at most ``tol``; only then is
-    the solve a success. Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`).
-
-    The pieces, each with its mathematics in its module docstring: ``lagrangian`` (``L_rho``, ``y`` and the KKT
-    test), ``loop`` (the iteration), ``scaling``, ``box`` and ``penalty`` (below).
+    Convergence is the KKT test at the current point (``lagrangian.py``): projected stationarity, feasibility and
+    complementarity all at most ``tol``. Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`).
 
     Scaling:
-        ``"guess"`` (default): a column scale ``d = max(|w0|, 1e-4)`` for the step rules and a row scale ``r`` (one
-        over the largest entry of each row of the start Jacobian in ``w / d``, clipped to ``[1e-4, 1e4]``) for the
-        Lagrangian. Both are changes of variables: the KKT test, the violation and the multipliers are unchanged.
-        Why: AMSGrad's steps are about ``lr`` whatever the gradient, so ``d`` makes them proportional to each
-        variable's magnitude, and ``r`` turns the huge multipliers of rows of small variables into ``O(1)`` ones
-        the dual ascent can reach. The scale is only as good as the start's magnitudes.
+        ``"guess"`` (default): a column scale ``d`` (the start's magnitudes) for the step rules and a row scale ``r``
+        (the start Jacobian's rows in ``w / d``) for the Lagrangian, changes of variables that leave the KKT test,
+        the violation and the multipliers as they are (the formulas: ``scaling.py``). Why: AMSGrad's steps are about
+        ``lr`` whatever the gradient, so ``d`` makes them proportional to each variable's magnitude, and ``r`` turns
+        the huge multipliers of rows of small variables into ``O(1)`` ones the dual ascent can reach.
         ``"bounds"``: ``d = 1`` and ``r = 1``, only ``z_scale``.
 
     Bounds:
-        ``"projection"``: clip ``w`` to the box after every half-step.
-        ``"sigmoid"``: ``w = l + (u - l) sigmoid(p)`` for the variables with both bounds finite, started ``1e-2``
-        inside the box (like IPOPT's ``bound_push``); the others are clipped. A solution on a bound is then
-        approached only asymptotically.
+        ``"projection"``: clip ``w`` to the box after every half-step. ``"sigmoid"``: ``w = l + (u - l) sigmoid(p)``
+        for the variables with both bounds finite (the others clipped), approaching a bound only asymptotically.
 
     Penalty:
-        Every 2000 iterations, if the violation has fallen by less than 10% since the last check (and is above
-        ``tol``), ``rho`` grows by ``penalty_growth`` up to ``penalty_max``; the dual steps are in units of
-        ``rho / penalty``, as in the method of multipliers. Why: a small fixed ``rho`` stalls transcribed OCPs short
-        of feasibility, a large one from the start stalls HS71.
+        When the violation stalls, ``rho`` grows by ``penalty_growth`` up to ``penalty_max`` (``penalty.py``); the
+        dual steps are in units of ``rho / penalty``. Why: a small fixed ``rho`` stalls transcribed OCPs short of
+        feasibility, a large one from the start stalls HS71.
 
     Step rules:
         The default primal rule is AMSGrad, Adam whose normaliser ``sqrt(v_max)`` never decreases. Why not Adam: its
@@ -91,10 +83,7 @@ class Extragradient(PureNLPSolver):
     Measurements behind these choices and defaults: docs/notes/extragradient-tuning.md.
 
     The whole solve is one ``lax.while_loop`` over its iteration (:meth:`stepper`, also the end-to-end learner's
-    unrolled planner): :meth:`solve_fn` returns the jit-compiled ``(data, z0) ->``
-    :class:`ExtragradientSolution`, and :meth:`solve_batch` runs ``jax.vmap`` of it over a batch of ``data`` as one
-    program (the loop then runs until every member has stopped; stopped members are frozen by ``vmap``'s select,
-    so each result equals its single solve).
+    unrolled planner): :meth:`solve_fn` and :meth:`solve_batch` are the pure tier's.
 
     Attributes:
         step: the primal step rule, an ``optax.GradientTransformation`` applied to ``grad_w L`` (descent), or a
@@ -155,15 +144,12 @@ class Extragradient(PureNLPSolver):
         return self._compiled(nlp).stepper.solve
 
     def stepper(self, nlp: NLP) -> ExtragradientStepper:
-        """The solve of ``nlp`` with its iteration apart (built once per NLP and configuration): ``begin``, ``step``,
-        ``running``, ``end``, and ``iterate`` (one iteration whatever the state: the unrolled planner's)."""
+        """The solve of ``nlp`` with its iteration apart (built once per NLP and configuration)."""
         return self._compiled(nlp).stepper
 
     def differentiable_solve(self, nlp: NLP) -> Callable[[Any, Any], ExtragradientSolution]:
-        """:meth:`pure_solve` with reverse mode in ``data`` by the implicit-function rule
-        (:mod:`~myriad.runtime.solvers.implicit`) at active sets estimated from the solution and least-squares
-        multipliers (the cotangent of ``multipliers`` is ignored); NaN cotangents unless it converged. The plain
-        :meth:`pure_solve` stays a ``while_loop`` that reverse mode refuses (never a silent gradient)."""
+        """:meth:`pure_solve` with reverse mode in ``data`` by the implicit-function rule at active sets estimated from
+        the solution (the cotangent of ``multipliers`` is ignored); NaN cotangents unless it converged."""
         problem = self._compiled(nlp).problem
         scale = jnp.asarray(problem.scale)
         return differentiable(self.pure_solve(nlp), problem,

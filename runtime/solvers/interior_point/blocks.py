@@ -1,21 +1,10 @@
 r"""Small dense matrices for the stage-wise Newton step (:mod:`.riccati`), written for a batch on a CPU.
 
-A stage's matrices are ``(n_y + c)``-sized: 2-7 for the published systems. Under ``vmap`` over a batch, an array of
-shape ``(B, 3, 3)`` puts the batch outside and the 3 x 3 inside: every product is a loop of short, strided inner
-loops, and a LAPACK Cholesky is called once per member. Here a matrix is instead a nested list of *scalars* (per
-member), so that under ``vmap`` each entry is one contiguous ``(B,)`` vector and a stage's whole recursion is a few
-hundred elementwise vector operations, which XLA fuses. Entries may also be the Python floats ``0.0`` and ``1.0``
-(the carried decisions' selection matrices): products with them are skipped or elided when the program is traced.
-
-Measured on the 2-core CPU (Mould Fungicide's published NLP, 1024 members vmapped, one inertia-certified
-factorisation with its Schur complement, jitted, min of 5): under a parallel job (load ~3) 98.7 ms with ``(B, k, k)``
-arrays and broadcast products against 35.9 ms with these lists (packing each step's inputs and outputs into one
-buffer, to save kernels, measured 52 ms: the strided reads cost more); quiet (load ~1), 7.3 ms with these lists. The
-backward pass alone on random stages of that size (``n_y + c = 3``) costs 75-110 ns a member and stage for ~100
-flops: XLA:CPU fuses each output of a scan step with the expression behind it and recomputes shared products;
-:func:`keep` (an optimisation barrier) makes it compute them once (1024 vmapped Epidemic NLPs: 4.06 -> 3.64 s). A
-rewrite with ``(k, k)`` arrays and unrolled products (``runtime/smallops.py``) was measured against these lists on
-2026-12-03 (1024 members in chunks of 128): no clear gain on Epidemic, slower on Mould Fungicide, on a noisy host.
+A matrix is a nested list of *scalars* (per member), so that under ``vmap`` each entry is one contiguous ``(B,)``
+vector and a stage's whole recursion is a few hundred elementwise vector operations, which XLA fuses (an array
+``(B, k, k)`` of the 2-7 wide stage matrices is a loop of short, strided loops; measured in the solver-code note).
+Entries may also be the Python floats ``0.0`` and ``1.0`` (the carried decisions' selection matrices): products with
+them are elided when the program is traced.
 """
 
 from __future__ import annotations

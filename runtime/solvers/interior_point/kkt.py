@@ -20,19 +20,15 @@ makes the reduced Hessian ``Z^T H_s Z`` positive definite, and ``S > 0`` means `
 large enough (Debreu's lemma), so a failed ``H_rho`` is retried with ``rho`` 10^4 and 10^8 times larger before
 ``delta_w`` grows. One step of iterative refinement on ``K`` itself restores the accuracy that a large ``rho`` costs.
 A large ``rho`` never certifies a wrong inertia (on the null space of ``A``, ``H_rho`` is ``H_s`` whatever ``rho``);
-too small a ``rho`` makes ``delta_w`` grow where IPOPT's true inertia would not: with 10^4 as the last retry, Rocket
-Landing's steps were regularised by ``delta_w`` 10^4-10^5 where IPOPT used 10^1-10^3, and it took 109 iterations
-against IPOPT's 53 (51 with the 10^8 retry).
+too small a ``rho`` makes ``delta_w`` grow where IPOPT's true inertia would not (Rocket Landing: the notes).
 
 Cost: one ``n_x x n_x`` and one ``m x m`` Cholesky per attempt, dense. Fine for single shooting (``n_x`` about 100-200);
 collocation's ``n_x`` of 500-1000 costs ``O(n_x^3)`` per iteration and the block-banded structure is not exploited.
 
 **Many rows (``2 m >= n_x``: collocation, multiple shooting): the null-space method.** There the certificate above
-failed where the inertia was right: on HIV Treatment's Trapezoidal(50) (``n_x = 201``, ``m = 150``, ``Sigma`` up to
-1e7) ``H_rho`` had no Cholesky factor even at ``10^8 rho`` while the reduced Hessian ``Z^T H_s Z`` was positive
-definite (smallest eigenvalue 0.8-1.3), so ``delta_w`` grew to 1e2-1e4 where 0-1 sufficed, and the solve crawled to
-the iteration limit. With a QR factorisation ``A^T = [Q_1 Z] [R; 0]`` (``A`` of full row rank), ``K`` has inertia
-``(n_x, m, 0)`` exactly when ``Z^T H_s Z`` is positive definite, and the step is
+can fail where the inertia is right (HIV Treatment: the solver-code note), and ``delta_w`` grows needlessly. With a
+QR factorisation ``A^T = [Q_1 Z] [R; 0]`` (``A`` of full row rank), ``K`` has inertia ``(n_x, m, 0)`` exactly when
+``Z^T H_s Z`` is positive definite, and the step is
 
 .. math::
     R^\top p = r_2,\quad Z^\top H_s Z\, q = Z^\top (r_1 - H_s Q_1 p),\quad d_x = Q_1 p + Z q,\quad
@@ -52,7 +48,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve, solve_triangular
 
-from .rules import DELTA_C_BAR, DELTA_C_EXPONENT, DELTA_W_MAX, MAX_ATTEMPTS, RHO_RETRIES, RHO_RETRY, inertia_schedule
+from .rules import certified, regularized
 
 __all__ = ["Factors", "cholesky", "factorize_with_inertia", "regularized_cholesky", "solve"]
 
@@ -61,10 +57,8 @@ RANK_TOL = 1e-10
 
 
 class Factors(NamedTuple):
-    """The factorised system: enough to solve with any right-hand side (the step and the second-order correction).
-
-    One of two methods holds (``nullspace``); the other's arrays are placeholders. Problems with few rows carry
-    empty null-space arrays (the method is chosen by shapes, see :func:`uses_nullspace`)."""
+    """The factorised system, for any right-hand side: one of two methods holds (``nullspace``), the other's arrays
+    are placeholders (empty null-space arrays for few rows: :func:`uses_nullspace`)."""
 
     h_s: jax.Array  # H_s (for the refinement residual)
     chol_h: jax.Array  # lower Cholesky factor of H_rho
@@ -95,7 +89,7 @@ def cholesky(matrix) -> tuple[jax.Array, jax.Array]:
     """``(lower factor, positive definite)``; the identity in place of a failed factor (NaN-free shapes).
 
     NOTE: later solves use the factor one right-hand side at a time: XLA:CPU's triangular solve with a matrix of
-    right-hand sides (hence also ``jnp.linalg.inv``) took 17-32 ms at n = 101 (measured), one with a vector 0.05 ms.
+    right-hand sides (hence also ``jnp.linalg.inv``) is far slower (the solver-code note).
     """
     k = matrix.shape[0]
     chol = jnp.linalg.cholesky(0.5 * (matrix + matrix.T))
@@ -153,31 +147,12 @@ def solve(f: Factors, jac: jax.Array, r1: jax.Array, r2: jax.Array, presolved: b
     return dx - cx, dl - cl
 
 
-class _Attempt(NamedTuple):
-    k: jax.Array
-    delta_w: jax.Array
-    delta_c: jax.Array
-    rho: jax.Array
-    done: jax.Array
-    factors: Factors
-
-
 def factorize_with_inertia(
     hess: jax.Array, sigma: jax.Array, jac: jax.Array, mu: jax.Array, delta_w_last: jax.Array, r1: Any = None
 ) -> tuple[Factors, jax.Array, jax.Array]:
-    """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC), by the null-space method for many rows and by
-    the certificate of the module docstring otherwise.
-
-    Tries ``delta_w = 0`` first (the certificate: at ``rho``, ``10^4 rho`` and ``10^8 rho``), then ``delta_w`` from
-    ``1e-4`` (or a third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a
-    rank-deficient ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same ``delta_w``.
-
-    ``r1`` is the stage-wise method's (``riccati.py``: solved with the Schur complement's columns) and is not used
-    here.
-
-    Returns:
-        ``(factors, delta_w, ok)``; ``ok`` is False when no ``delta_w`` up to the maximum gave the right inertia.
-    """
+    """IPOPT's inertia correction (:func:`~.rules.certified`), by the null-space method for many rows and by the
+    certificate of the module docstring otherwise: ``(factors, delta_w, ok)``, ``ok`` False when no ``delta_w`` up to
+    the maximum gave the right inertia. ``r1`` is the stage-wise method's (``riccati.py``) and is not used here."""
     del r1
     base = hess + jnp.diag(sigma)
     n_x, m = hess.shape[0], jac.shape[0]
@@ -191,24 +166,10 @@ def factorize_with_inertia(
 
 
 def regularized_cholesky(matrix, delta_w_last) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(lower Cholesky factor of matrix + delta_w I, delta_w, ok)``: IPOPT's schedule for ``delta_w`` from 0 (one
-    Cholesky an attempt), where the matrix's positive definiteness alone certifies the inertia (the null-space
-    method's reduced Hessian, the restoration phase's system)."""
+    """``(lower Cholesky factor of matrix + delta_w I, delta_w, ok)`` for the least ``delta_w`` of IPOPT's schedule
+    (:func:`~.rules.regularized`: the null-space method's reduced Hessian, the restoration phase's system)."""
     eye = jnp.eye(matrix.shape[0], dtype=matrix.dtype)
-
-    def attempt(a):
-        k, delta_w, _, _ = a
-        chol, ok = cholesky(matrix + delta_w * eye)
-        grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
-        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, chol
-
-    def keep_trying(a):
-        k, delta_w, done, _ = a
-        return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
-
-    zero = jnp.zeros((), matrix.dtype)
-    _, delta_w, ok, chol = jax.lax.while_loop(keep_trying, attempt, (jnp.array(0), zero, jnp.array(False), eye))
-    return chol, delta_w, ok
+    return regularized(lambda delta_w: cholesky(matrix + delta_w * eye), delta_w_last, matrix.dtype, eye)
 
 
 def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
@@ -224,35 +185,18 @@ def _nullspace(base, q, r, m, delta_w_last) -> tuple[Factors, jax.Array, jax.Arr
 
 
 def _certified(base, hess, jac, mu, delta_w_last) -> tuple[Factors, jax.Array, jax.Array]:
-    """The attempts on the Cholesky certificate of the module docstring."""
+    """The attempts on the Cholesky certificate of the module docstring (:func:`~.rules.certified`)."""
     n_x, m = hess.shape[0], jac.shape[0]
     dtype = hess.dtype
     # rho: the Hessian's magnitude over the largest squared row norm of A, so that rho A^T A can dominate it.
     row_sq = jnp.max(jnp.sum(jac * jac, axis=1), initial=0.0) if m else jnp.zeros((), dtype)
     rho0 = (1.0 + jnp.max(jnp.abs(hess), initial=0.0)) / jnp.maximum(row_sq, 1e-12) if m else jnp.zeros((), dtype)
-    # Attempts 0..RHO_RETRIES keep delta_w = 0 (rho, then larger); no retries for rho when there is no A.
-    first_grown = 1 + RHO_RETRIES if m else 1
 
-    def attempt(a: _Attempt) -> _Attempt:
-        rho = rho0 * RHO_RETRY ** jnp.minimum(a.k, RHO_RETRIES).astype(dtype)
-        rho = jnp.where(a.delta_c > 0, jnp.minimum(rho, 1e-2 / jnp.maximum(a.delta_c, 1e-300)), rho)
-        factors, ok_h, ok_s = _factorize(base + a.delta_w * jnp.eye(n_x, dtype=dtype), jac, rho, a.delta_c)
-        # S fails alone: A is (numerically) rank deficient; regularise it and retry the same delta_w.
-        rank_deficient = ok_h & ~ok_s & (a.delta_c == 0)
-        delta_c = jnp.where(rank_deficient, DELTA_C_BAR * mu**DELTA_C_EXPONENT, a.delta_c)
-        done = ok_h & ok_s
-        advance = ~done & ~rank_deficient
-        k = jnp.where(advance, a.k + 1, a.k)
-        delta_w = jnp.where(advance, inertia_schedule(a.k + 1, a.delta_w, delta_w_last, first_grown), a.delta_w)
-        return _Attempt(k, delta_w, delta_c, rho, done, factors)
-
-    def keep_trying(a: _Attempt):
-        return ~a.done & (a.k < MAX_ATTEMPTS) & (a.delta_w <= DELTA_W_MAX)
+    def factorize(k, delta_w, rho, delta_c):
+        return _factorize(base + delta_w * jnp.eye(n_x, dtype=dtype), jac, rho, delta_c)
 
     zero = jnp.zeros((), dtype)
     eye = jnp.eye(n_x, dtype=dtype)
-    init_factors = Factors(eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero, jnp.array(False),
-                           *_placeholders(n_x, m, dtype))
-    first = _Attempt(jnp.array(0), zero, zero, zero, jnp.array(False), init_factors)
-    final = jax.lax.while_loop(keep_trying, attempt, first)
-    return final.factors, final.delta_w, final.done
+    init = Factors(eye, eye, jnp.zeros((n_x, m), dtype), jnp.eye(m, dtype=dtype), zero, zero, jnp.array(False),
+                   *_placeholders(n_x, m, dtype))
+    return certified(factorize, rho0, m, mu, delta_w_last, dtype, init)

@@ -4,29 +4,22 @@ With ``x = (w, s)``, equality residuals ``g(x) = 0`` and bound multipliers ``z_l
 iteration
 
 1. evaluates ``sigma F``, its gradient, ``g``, ``A = dg/dx`` and the exact Hessian ``W`` of ``sigma F + lambda^T g``;
-2. stops when the scaled optimality error ``E_0`` (IPOPT's eq. 5: dual infeasibility over ``s_d``, ``||g||_inf``,
-   complementarity over ``s_c``) is at most ``tol`` and the NLP's own violation at most ``constr_viol_tol``;
-3. decreases the barrier parameter while ``E_mu <= 10 mu`` (monotone Fiacco-McCormick rule,
-   ``mu <- max(tol / 10, min(0.2 mu, mu^1.5))``);
+2. stops when the scaled optimality error ``E_0`` (IPOPT's eq. 5) is at most ``tol`` and the NLP's own violation at
+   most ``constr_viol_tol``;
+3. decreases the barrier parameter while ``E_mu <= 10 mu`` (monotone Fiacco-McCormick rule, :mod:`.rules`);
 4. solves the Newton system with inertia correction (:mod:`.kkt`) and recovers the bound multipliers' steps;
 5. limits the steps by the fraction-to-the-boundary rule (``tau = max(0.99, 1 - mu)``), primal and dual apart;
-6. backtracks with IPOPT's filter line search (:mod:`.rules`, Wächter & Biegler 2006, sec. 2.3) on the pair
-   (``theta = ||g||_1``, barrier objective ``phi_mu``); one second-order correction after a rejected full step that
-   did not reduce ``theta`` counters the Maratos effect; a non-finite trial is rejected;
+6. backtracks with IPOPT's filter line search on (``theta = ||g||_1``, barrier objective ``phi_mu``), with one
+   second-order correction after a rejected full step that did not reduce ``theta`` (the Maratos effect);
 7. keeps ``z`` within ``[mu / (1e10 gap), 1e10 mu / gap]`` of the primal-dual central path (IPOPT's eq. 16).
 
-The filter is a fixed array of ``FILTER_SIZE`` pairs, emptied whenever ``mu`` changes, as IPOPT does. It replaced an
-exact-penalty merit search that crawled on Rocket Landing (3000 iterations) and took 268 on Van der Pol (README.md).
+The filter is a fixed array of ``FILTER_SIZE`` pairs, emptied whenever ``mu`` changes, as IPOPT does.
 
 Where the filter rejects every step down to ``alpha_min`` (IPOPT's eq. 23), the current point joins the filter and
 the next iterations are IPOPT's feasibility restoration phase (:mod:`.restoration`), in this same loop: the Hessian
 of the constraints alone (the derivatives' objective weight is 0), an elastic feasibility problem, back to this
-iteration at a point the filter accepts. It replaced a backtracking on the merit ``phi_mu + nu ||g||_1`` that crawled
-on Predator-Prey's collocation and multiple shooting (README.md). A failed restoration ends the solve, ``INFEASIBLE``
-when the point is infeasible (an honest failure, not a proof) and ``NOT_CONVERGED`` otherwise (as does a failed search
-at a point too feasible to restore, IPOPT's rule); so do three consecutive negligible steps (below
-``1e-10 (1 + |x|)``) at an infeasible point, where bounds block every move towards feasibility and the
-fraction-to-the-boundary rule shrinks the steps geometrically.
+iteration at a point the filter accepts. A failed restoration ends the solve (the statuses: ``InteriorPoint``), as
+does a failed search at a point too feasible to restore (IPOPT's rule) and ``STALL_COUNT`` negligible steps in a row.
 """
 
 from __future__ import annotations
@@ -90,10 +83,8 @@ class WarmStart(NamedTuple):
 
 @register_namedtuple
 class InteriorPointSolution(NamedTuple):
-    """One solve's output (pure JAX; a batch has a leading axis on every field).
-
-    ``z``, ``objective`` and ``multipliers`` are differentiable with respect to ``data`` in reverse mode (see
-    :mod:`..implicit`); the rest is not.
+    """One solve's output (pure JAX; a batch has a leading axis on every field); ``z``, ``objective`` and
+    ``multipliers`` are differentiable with respect to ``data`` in reverse mode (:mod:`..implicit`), the rest not.
 
     Attributes:
         z: the final iterate in the NLP's variables; objective: ``F(z)``.
@@ -179,13 +170,9 @@ class _Filter(NamedTuple):
 
 
 class InteriorPointStepper:
-    """The interior-point solve of one :class:`~.problem.Layout` and configuration, its iteration apart (built once).
-
-    :meth:`begin`, :meth:`step`, :meth:`running` and :meth:`end` are a :class:`~myriad.runtime.solvers.stepper.Stepper`
-    (:attr:`stepper`): the pure solve is its ``while_loop``, and a batch queue refills finished members' places with
-    the same methods. A step evaluates the point (:meth:`_evaluate`), stops there or takes a restoration iteration or
-    a main one (:meth:`_advance`: :meth:`_direction`, then the filter line search, :meth:`_search`).
-    """
+    """The interior-point solve of one :class:`~.problem.Layout` and configuration as a
+    :class:`~myriad.runtime.solvers.stepper.Stepper` (:attr:`stepper`; built once). A step evaluates the point
+    (:meth:`_evaluate`), stops there or takes a restoration iteration or a main one (:meth:`_advance`)."""
 
     def __init__(self, layout: Layout, tol: float, constr_viol_tol: float, max_iter: int,
                  second_order_correction: bool = True):
@@ -404,7 +391,6 @@ class InteriorPointStepper:
         return st.status == RUNNING
 
     def end(self, data: Any, st: _State) -> InteriorPointSolution:
-        """The solution at the final state."""
         layout, n, m, scale, b = self.layout, self.n, self.m, self.scale, self.bounds
         gl, gu = b.gaps(st.x)
         held_l, held_u = b.hl & (st.zl > gl), b.hu & (st.zu > gu)

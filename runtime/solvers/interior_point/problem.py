@@ -131,16 +131,12 @@ class Layout:
         """``(F, c, dF/dw, dc/dw, Hessian of s F + y^T c)`` at ``w``, unscaled, ``y`` in the NLP's row order, ``s`` the
         ``objective_weight`` (IPOPT's ``obj_factor``: 0 in the restoration phase; the gradient is ``F``'s whatever it).
 
-        One program: the JVPs of ``(F, c, grad_w(s F + y^T c))`` along the ``n`` unit vectors (forward over reverse),
-        whose unbatched primal is ``(F, c)`` and whose tangents are the gradient, the Jacobian and the Hessian. One
-        pass instead of a first-order program and a Hessian program: half the rollouts to compile. A transcription
-        that knows its structure (``NLP.lagrangian_derivatives``: single shooting's stages) gives them itself.
-        """
-        if self.riccati is not None:  # the Hessian as its stages (riccati.py)
-            f, c, grad_f, jac_c, hess = self.problem.stages(w, y, data, objective_weight)
-            return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
-        if self.problem.derivatives is not None:
-            f, c, grad_f, jac_c, hess = self.problem.derivatives(w, y, data, objective_weight)
+        One program (half the rollouts to compile of a first-order and a Hessian program): the JVPs of ``(F, c,
+        grad_w(s F + y^T c))`` along the ``n`` unit vectors, unless the transcription gives them itself."""
+        # The Hessian as its stages (riccati.py), or the transcription's own.
+        given = self.problem.stages if self.riccati is not None else self.problem.derivatives
+        if given is not None:
+            f, c, grad_f, jac_c, hess = given(w, y, data, objective_weight)
             return f, jnp.reshape(c, (-1,)), grad_f, jnp.reshape(jac_c, (-1, self.n)), hess
         evaluate = self.problem.evaluate
 

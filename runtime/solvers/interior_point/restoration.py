@@ -1,11 +1,7 @@
 r"""The feasibility restoration phase (Wächter & Biegler 2006, sec. 3.3), as iterations of the main ``while_loop``.
 
 **Why.** When the filter rejects every trial step down to ``alpha_min`` the Newton direction is useless for the
-filter, and backtracking on a merit function along it (what the loop did before) crawls: on Predator-Prey's
-collocation and multiple shooting the fraction-to-the-boundary rule cut steps to 1e-7 .. 1e-13 of the Newton step
-while ``delta_w`` grew to 1e22, ending at the iteration limit or ``INFEASIBLE`` where IPOPT (on Hermite-Simpson(100)
-through the very same iterates up to that point) enters its restoration phase and converges. This module is that
-phase; with it the loop reaches IPOPT's cost on all three (README.md has the numbers).
+filter, and backtracking on a merit function along it crawls (Predator-Prey: the solver-code measurements note).
 
 **What.** From the point ``x_R`` where the search failed, the iterations solve the elastic feasibility problem
 
@@ -36,9 +32,8 @@ restoration) and a failed inertia correction. Restoration iterations count towar
 
 Fixed shapes: the phase's state (:class:`Restoration`) is part of the loop's state whether or not the phase is
 active, and a restoration iteration is the body of a ``while_loop`` of at most one pass, taken while ``active``:
-under ``vmap`` a ``cond`` runs both branches for every member, a loop only while some member needs it, so a batch
-with no member in restoration pays almost nothing for it (a cond alone cost a vmapped Mould Fungicide batch a fifth
-to a quarter of its throughput). The loop carries the state and point, so that XLA cannot hoist the pass out of it.
+under ``vmap`` a ``cond`` runs both branches for every member (a fifth to a quarter of a vmapped Mould Fungicide
+batch's throughput), a loop only while some member needs it.
 """
 
 from __future__ import annotations
@@ -116,15 +111,9 @@ class _Step(NamedTuple):
 
 
 class RestorationPhase:
-    """The restoration phase of one barrier problem (see the module docstring); an iteration is :meth:`_direction`,
-    :meth:`_search` and the way back to the main iteration.
-
-    * ``idle(x0)``: an inactive :class:`Restoration` (the loop's initial state);
-    * ``enter(x, g, zl, zu, mu) -> (Restoration, lam, zl, zu)``: start the phase at ``x``;
-    * ``step(st, pt, data) -> (st, failed)``: one restoration iteration on the loop's state ``st`` (its ``x``,
-      ``lam``, ``zl``, ``zu``, ``rs``, main filter and ``mu``) at the point ``pt``, whose Hessian is the constraints'
-      alone; it leaves the phase (``rs.active`` False, main multipliers restored) when the main filter accepts.
-    """
+    """The restoration phase of one barrier problem: ``idle(x0)``, an inactive :class:`Restoration`; ``enter(x, g,
+    zl, zu, mu) -> (Restoration, lam, zl, zu)``; ``step(st, pt, data) -> (st, failed)``, one iteration on the loop's
+    state at the point ``pt`` (the constraints' Hessian alone), leaving the phase when the main filter accepts."""
 
     def __init__(self, layout, tol: float, constr_viol_tol: float, mu_min: float):
         self.layout, self.tol, self.constr_viol_tol, self.mu_min = layout, tol, constr_viol_tol, mu_min
@@ -132,6 +121,9 @@ class RestorationPhase:
         self.bounds = Bounds(layout)
         self.n_bounds = self.bounds.count + 2 * self.m
         self.on_w = jnp.arange(layout.n_x) < self.n  # the proximity term leaves the slacks free
+        # The system stage by stage (riccati.py) or dense: the same system, the same schedule.
+        ric = layout.riccati
+        self.factorize, self.solve = (ric.factorize_weighted, ric.solve_weighted) if ric else (_factorize, _solve)
 
     def idle(self, x0):
         # Ones, not zeros: a vmapped pass computes the inactive members' step too (and discards it); keep it finite.
@@ -208,15 +200,8 @@ class RestorationPhase:
         a_p, a_n = RHO - lam - mu / p, RHO + lam - mu / n_
         r1 = -(grad_x + jac.T @ lam)
         r2 = -(g - p + n_) - a_p / sp + a_n / sn
-        if self.layout.riccati is not None:  # stage by stage (riccati.py): the same system, the same schedule
-            ric = self.layout.riccati
-            factors, delta_w, inertia_ok = ric.factorize_weighted(pt.hess, zeta * d2 + sig_l + sig_u, jac, dinv,
-                                                                  rs.delta_w)
-            dx, dlam = ric.solve_weighted(factors, jac, dinv, r1, r2)
-        else:
-            h_s = pt.hess + jnp.diag(zeta * d2 + sig_l + sig_u)
-            chol, h_s, delta_w, inertia_ok = _factorize(h_s, jac, dinv, rs.delta_w)
-            dx, dlam = _solve(chol, h_s, jac, dinv, r1, r2)
+        factors, delta_w, inertia_ok = self.factorize(pt.hess, zeta * d2 + sig_l + sig_u, jac, dinv, rs.delta_w)
+        dx, dlam = self.solve(factors, jac, dinv, r1, r2)
         dp, dn = (dlam - a_p) / sp, (-a_n - dlam) / sn
         dzl = jnp.where(hl, mu / gl - zl - sig_l * dx, 0.0)
         dzu = jnp.where(hu, mu / gu - zu + sig_u * dx, 0.0)
@@ -300,16 +285,18 @@ def _reset_bound_multipliers(bounds: Bounds, rs: Restoration, x, mu) -> tuple[An
     return (jnp.where(bounds.hl, jnp.where(large, 1.0, zl), 0.0), jnp.where(bounds.hu, jnp.where(large, 1.0, zu), 0.0))
 
 
-def _factorize(h_s, jac, dinv, delta_w_last):
-    """IPOPT's inertia correction on ``H_s + A^T diag(dinv) A`` (see the module docstring): ``(lower Cholesky factor,
-    H_s with the accepted delta_w, delta_w, ok)``."""
+def _factorize(hess, d, jac, dinv, delta_w_last):
+    """IPOPT's inertia correction on ``H_s + A^T diag(dinv) A``, ``H_s = hess + diag(d)`` (see the module docstring):
+    ``((lower Cholesky factor, H_s with the accepted delta_w), delta_w, ok)``."""
+    h_s = hess + jnp.diag(d)
     chol, delta_w, ok = regularized_cholesky(h_s + jac.T @ (dinv[:, None] * jac), delta_w_last)
     eye = jnp.eye(h_s.shape[0], dtype=h_s.dtype)
-    return chol, h_s + delta_w * eye, delta_w, ok
+    return (chol, h_s + delta_w * eye), delta_w, ok
 
 
-def _solve(chol, h_s, jac, dinv, r1, r2):
+def _solve(factors, jac, dinv, r1, r2):
     """``(d_x, d_lambda)`` of ``[H_s A^T; A -diag(1/dinv)] (d_x, d_lambda) = (r1, r2)``, one step of refinement."""
+    chol, h_s = factors
 
     def once(s1, s2):
         dx = cho_solve((chol, True), s1 + jac.T @ (dinv * s2))

@@ -38,12 +38,7 @@ on ``K`` uses the stage-wise product ``H_s v`` (a forward and an adjoint pass) f
 where IPOPT's residual ratio exceeds 1e-10 (:meth:`Riccati.solve`). The residual is measured only where the
 factorisation gives a reason to doubt the solve (``Factors.check``: the certificate raised ``rho`` or regularised
 ``A``, or the Schur complement's factor looks ill-conditioned): measured at every step, it took a third of a vmapped
-batch's time, and on the published problems it never asked for a refinement.
-
-Why: under ``vmap`` over a batch, a dense ``n x n`` Cholesky per member does not vectorise on a CPU, while each
-stage of the recursion is a few products of ``(n_y + c)``-sized matrices on the whole batch at once. The small
-matrices are factorised by unrolled Cholesky (elementwise, so XLA fuses them across the batch): LAPACK called per
-member and stage would cost more than the arithmetic.
+batch's time. Why stage by stage, and unrolled small Cholesky factors (:mod:`.blocks`): this package's README.
 """
 
 from __future__ import annotations
@@ -58,19 +53,7 @@ from ...smallops import add_at, matmul, matvec, take
 from . import blocks as bl
 from .blocks import cho_solve_array as _cho_solve
 from .blocks import cholesky_array as _cholesky
-from .rules import (
-    CHECK_COND,
-    DELTA_C_BAR,
-    DELTA_C_EXPONENT,
-    DELTA_W_MAX,
-    MAX_ATTEMPTS,
-    RESIDUAL_RATIO_MAX,
-    RHO_RETRIES,
-    RHO_RETRY,
-    condition_bound,
-    inertia_schedule,
-    residual_ratio,
-)
+from .rules import CHECK_COND, RESIDUAL_RATIO_MAX, certified, condition_bound, regularized, residual_ratio
 
 __all__ = ["StageHessian", "Riccati", "chain"]
 
@@ -294,11 +277,9 @@ class Riccati:
 
     def factorize_with_inertia(self, h: StageHessian, sigma, jac, mu, delta_w_last,
                                r1=None) -> tuple[Factors, Any, Any]:
-        """IPOPT's inertia correction with :mod:`.kkt`'s certificate and schedule (``rho`` retried at 10^4 and
-        10^8 times, then ``delta_w`` grown; ``delta_c`` for a rank-deficient ``A``); ``(factors, delta_w, ok)``.
-        ``factors.check`` is set where the solves should measure their residual: an attempt after the first
-        (``rho`` or ``delta_w`` raised; ``H + rho A^T A`` loses accuracy as ``rho`` grows), ``delta_c > 0``, or a
-        Schur complement whose :func:`~.rules.condition_bound` exceeds ``CHECK_COND``.
+        """IPOPT's inertia correction with :mod:`.kkt`'s certificate and schedule (:func:`~.rules.certified`):
+        ``(factors, delta_w, ok)``, ``factors.check`` set where the solves should measure their residual (``rho``
+        or ``delta_w`` raised, ``delta_c > 0``, or a Schur complement whose condition bound exceeds ``CHECK_COND``).
 
         ``r1`` (optional): the Newton system's first block of right-hand side, solved in the same sweeps as the Schur
         complement's ``m`` columns (``H_rho^{-1} (r1 + rho A^T r2) = H_rho^{-1} r1 + rho H_rho^{-1} A^T r2``), so
@@ -309,12 +290,8 @@ class Riccati:
         # The dense method's rho0 scales with max |H|; the stages' curvature is the stage-wise proxy for it.
         size = jnp.maximum(jnp.max(jnp.abs(h.w), initial=0.0), jnp.max(jnp.abs(h.g_yy), initial=0.0))
         rho0 = (1.0 + size) / jnp.maximum(row_sq, 1e-12) if m else jnp.zeros((), dtype)
-        first_grown = 1 + RHO_RETRIES if m else 1
 
-        def attempt(a):
-            k, delta_w, delta_c, _, _, _ = a
-            rho = rho0 * RHO_RETRY ** jnp.minimum(k, RHO_RETRIES).astype(dtype)
-            rho = jnp.where(delta_c > 0, jnp.minimum(rho, 1e-2 / jnp.maximum(delta_c, 1e-300)), rho)
+        def factorize(k, delta_w, rho, delta_c):
             columns = ([jac.T] if m else []) + ([r1[:, None]] if r1 is not None else [])
             f, ok_h, solved = self.factor(h, sigma + delta_w, jac, jnp.full(m, rho, dtype),
                                           jnp.concatenate(columns, axis=1) if columns else None)
@@ -328,23 +305,10 @@ class Riccati:
                 chol_s, ok_s = f.chol_s, ok_h
             f = f._replace(hinv_at=hinv_at, hinv_r1=hinv_r1, chol_s=chol_s, rho=rho, delta_c=delta_c,
                            check=(k > 0) | (delta_c > 0) | (condition_bound(chol_s) > CHECK_COND))
-            rank_deficient = ok_h & ~ok_s & (delta_c == 0)
-            delta_c = jnp.where(rank_deficient, DELTA_C_BAR * mu**DELTA_C_EXPONENT, delta_c)
-            done = ok_h & ok_s
-            advance = ~done & ~rank_deficient
-            k_new = jnp.where(advance, k + 1, k)
-            delta_w = jnp.where(advance, inertia_schedule(k + 1, delta_w, delta_w_last, first_grown), delta_w)
-            return k_new, delta_w, delta_c, done, f, jnp.array(True)
+            return f, ok_h, ok_s
 
-        def keep_trying(a):
-            k, delta_w, _, done, _, _ = a
-            return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
-
-        zero = jnp.zeros((), dtype)
-        # The first attempt outside the loop: its output fixes the carry's shapes (and most iterations need no more).
-        first = attempt((jnp.array(0), zero, zero, jnp.array(False), None, None))
-        _, delta_w, _, done, f, _ = jax.lax.while_loop(keep_trying, attempt, first)
-        return f, delta_w, done
+        # No placeholder factors: the first attempt runs before the loop and fixes the carry's shapes.
+        return certified(factorize, rho0, m, mu, delta_w_last, dtype)
 
     def _once(self, f: Factors, jac, r1, r2, presolved=False):
         if not jac.shape[0]:
@@ -357,12 +321,8 @@ class Riccati:
 
     def solve(self, f: Factors, jac, r1, r2, presolved=False):
         """``(d_x, d_lambda)`` solving ``K (d_x, d_lambda) = (r1, r2)``; ``presolved``: ``r1`` is the one given to
-        :meth:`factorize_with_inertia`.
-
-        Where ``f.check`` (see :meth:`factorize_with_inertia`), the residual on ``K`` is measured and one step of
-        iterative refinement taken where IPOPT's residual ratio exceeds ``residual_ratio_max``
-        (:func:`residual_ratio`): a loop of at most one pass, so that under ``vmap`` its four sweeps run only when
-        some member's factors are doubted."""
+        :meth:`factorize_with_inertia`. Where ``f.check``, one step of iterative refinement where IPOPT's residual
+        ratio asks: a loop of at most one pass, so that under ``vmap`` its four sweeps run only when needed."""
         dx, dl = self._once(f, jac, r1, r2, presolved)
 
         def refine(c):
@@ -381,19 +341,7 @@ class Riccati:
     def factorize_weighted(self, h: StageHessian, d, jac, weights, delta_w_last):
         """``H + diag(d) + delta_w I + A^T diag(weights) A`` positive definite for the least ``delta_w`` of IPOPT's
         schedule (the restoration phase's exact inertia test): ``(factors, delta_w, ok)``."""
-        def attempt(a):
-            k, delta_w, _, _ = a
-            f, ok, _ = self.factor(h, d + delta_w, jac, weights)
-            grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
-            return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, f
-
-        def keep_trying(a):
-            k, delta_w, done, _ = a
-            return ~done & (k < MAX_ATTEMPTS) & (delta_w <= DELTA_W_MAX)
-
-        zero = jnp.zeros((), d.dtype)
-        _, delta_w, ok, f = jax.lax.while_loop(keep_trying, attempt, attempt((jnp.array(0), zero, None, None)))
-        return f, delta_w, ok
+        return regularized(lambda delta_w: self.factor(h, d + delta_w, jac, weights)[:2], delta_w_last, d.dtype)
 
     def solve_weighted(self, f: Factors, jac, weights, r1, r2):
         """``(d_x, d_lambda)`` of ``[H_s A^T; A -diag(1/weights)] (d_x, d_lambda) = (r1, r2)``, one refinement."""

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 __all__ = ["Bounds", "decrease_mu", "fraction_to_boundary", "alpha_min", "acceptable", "add_pair", "inertia_schedule",
-           "residual_ratio", "condition_bound", "scaled_error"]
+           "residual_ratio", "condition_bound", "scaled_error", "regularized", "certified"]
 
 # IPOPT's barrier defaults: the monotone update (kappa_epsilon, kappa_mu, theta_mu), tau_min, kappa_Sigma and s_max.
 KAPPA_EPS, KAPPA_MU, THETA_MU, TAU_MIN, KAPPA_SIGMA, S_MAX = 10.0, 0.2, 1.5, 0.99, 1e10, 100.0
@@ -125,6 +125,56 @@ def inertia_schedule(k, delta_w, delta_w_last, first_grown):
     start = jnp.where(delta_w_last > 0, jnp.maximum(DELTA_W_MIN, SHRINK * delta_w_last), DELTA_W_FIRST)
     grown = delta_w * jnp.where(delta_w_last > 0, GROW, GROW_FIRST)
     return jnp.where(k < first_grown, 0.0, jnp.where(k == first_grown, start, grown))
+
+
+def regularized(factorize, delta_w_last, dtype, init=None):
+    """``(factors, delta_w, ok)`` of ``factorize(delta_w) -> (factors, ok)`` at the least ``delta_w`` of IPOPT's
+    schedule from 0 for which it succeeds (one factorisation an attempt), where positive definiteness alone certifies
+    the inertia. ``init``: placeholder factors for the loop's carry (None: the first attempt runs before the loop and
+    fixes the carry's shapes)."""
+    def attempt(a):
+        k, delta_w, _, _ = a
+        factors, ok = factorize(delta_w)
+        grown = inertia_schedule(k + 1, delta_w, delta_w_last, 1)
+        return jnp.where(ok, k, k + 1), jnp.where(ok, delta_w, grown), ok, factors
+
+    _, delta_w, ok, factors = _attempts(attempt, (jnp.array(0), jnp.zeros((), dtype), jnp.array(False), init))
+    return factors, delta_w, ok
+
+
+def certified(factorize, rho0, m, mu, delta_w_last, dtype, init=None):
+    """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC) on the Cholesky certificate of :mod:`.kkt`,
+    for either form of the Newton system: ``factorize(k, delta_w, rho, delta_c) -> (factors, H_rho ok, S ok)`` at
+    attempt ``k``. ``delta_w = 0`` first, at ``rho0``, ``10^4 rho0`` and ``10^8 rho0``, then ``delta_w`` from ``1e-4``
+    (or a third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a
+    rank-deficient ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same
+    ``delta_w``. ``init`` as for :func:`regularized`. Returns ``(factors, delta_w, ok)``."""
+    # Attempts 0..RHO_RETRIES keep delta_w = 0 (rho, then larger); no retries for rho when there is no A.
+    first_grown = 1 + RHO_RETRIES if m else 1
+
+    def attempt(a):
+        k, delta_w, delta_c, _, _ = a
+        rho = rho0 * RHO_RETRY ** jnp.minimum(k, RHO_RETRIES).astype(dtype)
+        rho = jnp.where(delta_c > 0, jnp.minimum(rho, 1e-2 / jnp.maximum(delta_c, 1e-300)), rho)
+        factors, ok_h, ok_s = factorize(k, delta_w, rho, delta_c)
+        # S fails alone: A is (numerically) rank deficient; regularise it and retry the same delta_w.
+        rank_deficient = ok_h & ~ok_s & (delta_c == 0)
+        delta_c = jnp.where(rank_deficient, DELTA_C_BAR * mu**DELTA_C_EXPONENT, delta_c)
+        done = ok_h & ok_s
+        advance = ~done & ~rank_deficient
+        delta_w = jnp.where(advance, inertia_schedule(k + 1, delta_w, delta_w_last, first_grown), delta_w)
+        return jnp.where(advance, k + 1, k), delta_w, delta_c, done, factors
+
+    zero = jnp.zeros((), dtype)
+    _, delta_w, _, done, factors = _attempts(attempt, (jnp.array(0), zero, zero, jnp.array(False), init))
+    return factors, delta_w, done
+
+
+def _attempts(attempt, start):
+    """The ``lax.while_loop`` of ``attempt`` on ``(k, delta_w, ..., done, factors)`` until done or out of attempts."""
+    if start[-1] is None:
+        start = attempt(start)
+    return jax.lax.while_loop(lambda a: ~a[-2] & (a[0] < MAX_ATTEMPTS) & (a[1] <= DELTA_W_MAX), attempt, start)
 
 
 # IPOPT's residual_ratio_max and the max_cond of its residual ratio (PDFullSpaceSolver).

@@ -21,16 +21,10 @@ from .problem import Layout
 
 __all__ = ["InteriorPoint"]
 
-# A vmapped batch on a CPU, in chunks of this many members: 1024 Epidemic / Mould Fungicide NLPs (published setting,
-# 2-core AMD EPYC, quiet) took 3.64 / 0.48 s vmapped at once, 2.76 / 0.42 s in chunks of 256, 2.61 / 0.40 s of 128
-# and 2.65 / 0.42 s of 64: a wide batch's stage data (~40 per member and stage) streams from memory on every sweep.
+# A vmapped batch on a CPU runs in chunks of CPU_CHUNK members (a wide batch's stage data streams from memory on every
+# sweep), of CPU_CHUNK_SHARED where the batch is spread over several host devices (they share the caches). Measured:
+# docs/notes/2026-12-05-solver-code-measurements.md.
 CPU_CHUNK = 128
-# With the batch spread over several host devices (one thread each, solve_batch), smaller chunks: two devices share
-# the caches. 1024 NLPs on two devices, program alone, interleaved runs (2026-12-04, medians of 4): Epidemic 2.83 /
-# 3.07 / 3.23 s in chunks of 32 / 64 / 128 (48 and 32 alike in a second run), Mould Fungicide 0.47 / 0.42 / 0.44 s
-# (32 / 64 / 128). On one device chunks of 36 were slower than 128 (Epidemic 5.9 against 4.5 s). With the places of
-# stopped members refilled (stepper.queued), Epidemic on two devices, interleaved, medians of 4: 4.02 / 4.03 / 3.98 /
-# 4.27 s with 32 / 48 / 64 / 96 members in flight (a slower hour: chunks of 48 took 5.10 s against the queue's 4.44).
 CPU_CHUNK_SHARED = 48
 
 _MESSAGES = {
@@ -57,34 +51,24 @@ class InteriorPoint(PureNLPSolver):
         \min_x\ \sigma F(w) - \mu \sum_j \big(\ln(x_j - x^l_j) + \ln(x^u_j - x_j)\big)
         \quad\text{s.t.}\quad g(x) = 0,\qquad x = (w, s),
 
-    are solved by Newton steps on the primal-dual optimality conditions for a decreasing ``mu``. The Hessian of the
-    Lagrangian is exact (forward over reverse, or the transcription's own ``lagrangian_derivatives``: single
-    shooting's stages), the Newton system is factorised densely with inertia correction (:mod:`.kkt`), steps obey
-    the fraction-to-the-boundary rule and are globalised by IPOPT's filter line search with a second-order
-    correction (:mod:`.loop`), and IPOPT's feasibility restoration phase where that search fails
-    (:mod:`.restoration`). Everything runs in ``w = z / z_scale`` (:class:`ScaledProblem`), with IPOPT's
-    gradient-based scaling of the objective and rows on top.
+    are solved by Newton steps on the primal-dual optimality conditions for a decreasing ``mu``, with the exact
+    Hessian, inertia correction, IPOPT's filter line search and its feasibility restoration phase (the modules, in
+    this package's README). Everything runs in ``w = z / z_scale``, with IPOPT's gradient-based scaling on top.
 
-    Statuses: ``CONVERGED`` (optimality error at most ``tol`` and the NLP's violation at most ``constr_viol_tol``);
-    ``ITERATION_LIMIT``; ``INFEASIBLE`` (the restoration phase failed at an infeasible point, typically converging
-    to a minimiser of the infeasibility: an honest failure, not a proof of infeasibility); ``NOT_FINITE`` (a NaN or
-    inf in a value or derivative at an iterate; a non-finite *trial* point is only rejected by the line search);
-    ``NOT_CONVERGED`` (line search, restoration or inertia correction failed at a feasible point). Only
-    ``CONVERGED`` is a success.
+    Statuses (each with its message): only ``CONVERGED`` (optimality error at most ``tol`` and the NLP's violation at
+    most ``constr_viol_tol``) is a success; ``INFEASIBLE`` is an honest failure, not a proof of infeasibility, and a
+    non-finite *trial* point is only rejected by the line search (``NOT_FINITE`` is a non-finite iterate).
 
-    Pure tier: :meth:`solve_fn` is the jit-compiled ``(data, z0) ->`` :class:`InteriorPointSolution`, compiled once per
-    NLP and shapes; :meth:`solve_batch` runs a batch as one program (each member keeps its status): ``batch="vmap"``
-    vectorises the members (members that stop early are frozen), ``batch="map"`` solves them in turn. The Newton
-    system is dense (:mod:`.kkt`) or, for single shooting without path rows, slacks or free time, stage by stage
-    (:mod:`.riccati`: a Riccati recursion over the rollout's stages, the same certificate and steps); ``kkt="auto"``
+    Pure tier: :meth:`solve_fn` is the jit-compiled ``(data, z0) ->`` :class:`InteriorPointSolution`;
+    :meth:`solve_batch` runs a batch as one program: ``batch="vmap"`` vectorises the members, ``batch="map"`` solves
+    them in turn. The Newton system is dense (:mod:`.kkt`) or, for single shooting without path rows, slacks or free
+    time, stage by stage (:mod:`.riccati`: a Riccati recursion, the same certificate and steps); ``kkt="auto"``
     (the default) takes the stage-wise step in vmapped batches and the dense one elsewhere, and ``batch="auto"``
-    vmaps on an accelerator and, on a CPU, vmaps where the stage-wise step applies and maps otherwise. Measured on
-    the 2-core CPU (README.md): the stage-wise step vectorises across a vmapped batch where dense Cholesky
-    factorisations of 101 variables do not, while a single solve of Epidemic or Van der Pol took 2.3x as long with
-    it as with the dense step.
-    ``jax.grad`` of a function of its ``z``, ``objective`` or ``multipliers`` with respect to ``data`` works through
-    a ``jax.custom_vjp`` (implicit function theorem, :mod:`..implicit`), also under ``vmap``; a solve that did not
-    converge gives NaN cotangents, never a silent gradient. Forward mode (``jax.jvp``) is not supported.
+    vmaps on an accelerator and, on a CPU, vmaps where the stage-wise step applies and maps otherwise (the
+    stage-wise step vectorises across a batch where dense Cholesky factorisations do not, but a single solve is
+    slower with it).
+    ``jax.grad`` with respect to ``data`` of its ``z``, ``objective`` or ``multipliers`` is the implicit function
+    theorem's (:mod:`..implicit`; NaN cotangents for a solve that did not converge). Forward mode is not supported.
 
     Attributes:
         tol: the scaled optimality error (IPOPT's ``tol``) at which the solve stops.
@@ -94,11 +78,9 @@ class InteriorPoint(PureNLPSolver):
         batch: how :meth:`solve_batch` runs its members: ``"auto"``, ``"vmap"`` or ``"map"`` (above).
         kkt: the Newton system's method: ``"auto"``, ``"dense"`` or ``"riccati"`` (above; ``"riccati"`` raises for
             an NLP without the stage structure).
-        chunk: how many members a vmapped batch solves at once (on each device): ``"auto"`` (``CPU_CHUNK`` on a
-            CPU, ``CPU_CHUNK_SHARED`` where the batch is spread over several host devices: their stage data stays
-            in cache; all at once on an accelerator), ``None`` (all at once) or a positive int. The place of a
-            member that stops is taken by the next waiting one (:func:`~myriad.runtime.solvers.stepper.queued`), so
-            no chunk waits for its slowest member.
+        chunk: how many members a vmapped batch keeps in flight (on each device; a stopped member's place is taken
+            by the next waiting one): ``"auto"`` (``CPU_CHUNK`` on a CPU, ``CPU_CHUNK_SHARED`` over several host
+            devices, all at once on an accelerator), ``None`` (all at once) or a positive int.
 
     References:
         Wächter & Biegler (2006), On the implementation of an interior-point filter line-search algorithm for
@@ -143,23 +125,20 @@ class InteriorPoint(PureNLPSolver):
     def pure_solve_batch(self, nlp: NLP) -> Callable[[Any, Any], InteriorPointSolution]:
         """The batch's solve: with ``kkt="auto"``, stage-wise (Riccati) when the batch is vmapped and the NLP
         allows it (see the class docstring)."""
-        return self._batch_compiled(nlp).raw
+        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").raw
 
     def batch_stepper(self, nlp: NLP) -> Stepper:
-        """:meth:`pure_solve_batch`'s solve as a :class:`Stepper`: a chunked batch keeps ``chunk`` members in flight
-        and refills the places of those that stop (:func:`~myriad.runtime.solvers.stepper.queued`)."""
-        return self._batch_compiled(nlp).stepper
+        """:meth:`pure_solve_batch`'s solve as a :class:`Stepper` (a chunked batch's queue)."""
+        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").stepper
 
     def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
-        """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``: what
-        :meth:`pure_solve` does with an array ``z0``, as a start that a ``jnp.where`` can choose against the
-        ``warm`` of an earlier solution (one program for both)."""
+        """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``, which a ``jnp.where``
+        can choose against the ``warm`` of an earlier solution (one program for both)."""
         return self._compiled(nlp).cold
 
     def batch_strategy(self, problem: Any = None) -> str:
-        """``batch``, with ``"auto"`` resolved: vmap on an accelerator; on a CPU, vmap where the Newton step can be
-        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it) and map otherwise (measured: the
-        class docstring)."""
+        """``batch``, with ``"auto"`` resolved (the class docstring): on a CPU, vmap only where the Newton step can be
+        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it)."""
         if self.batch != "auto":
             return self.batch
         if jax.default_backend() != "cpu":
@@ -191,10 +170,6 @@ class InteriorPoint(PureNLPSolver):
         return status, int(out.status), _MESSAGES[status]
 
     # ---- implementation ----------------------------------------------------------------------------------------
-
-    def _batch_compiled(self, nlp: NLP) -> _Compiled:
-        """What :meth:`solve_batch` runs: stage-wise where the batch is vmapped (:meth:`kkt_method`)."""
-        return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap")
 
     def _compiled(self, nlp: NLP, vmapped: bool = False) -> _Compiled:
         method = self.kkt_method(nlp, vmapped)

@@ -196,7 +196,10 @@ def test_tables_markdown_and_csv(serial_records):
     (["--backend", "process", "--workers", "0"], "--workers must be at least 1"),
     (["--method", "solve:intervals=0"], "intervals must be an integer >= 1"),
     (["--method", "sysid"], "simple_case declares no learnable parameters"),
-    (["--seeds", "0", "0"], "repeated 0"),
+    (["--seeds", "0", "0"], "--seeds must differ: repeated 0"),
+    (["--seeds", "-1"], "--seeds must be integers >= 0, got -1"),
+    (["--method", "no_such_kind"], "--method: unknown method kind 'no_such_kind'; known: solve, sysid, mpc"),
+    (["--method", "a=solve", "a=solve:intervals=9"], "--method must differ: repeated a; give each method its own"),
     (["--json", "missing-folder/r.json"], "the folder of missing-folder/r.json does not exist"),
 ])
 def test_cli_checks_arguments_before_any_work(argv, words, capsys, tmp_path, monkeypatch):

@@ -207,3 +207,19 @@ def test_a_refined_grid_that_fails_returns_the_last_converged_one(monkeypatch):
     assert not r["met"] and not sol.accurate and sol.converged
     assert "did not converge on the grid of" in r["reason"] and "the last converged grid, 4 intervals" in r["reason"]
     assert sol.intervals == 4 and sol.cost != 99.0 and [h["converged"] for h in r["history"]] == [True, False]
+
+
+def test_refinement_stops_where_the_re_simulation_cannot_agree(monkeypatch):
+    # Alp rider's open-loop re-simulation is off by ~1e23 on every grid (eigenvalue +2 over T = 20): refining ran all
+    # 10 levels (1410 s) for nothing. A gap that does not fall from one grid to the next stops refinement, reported.
+    import myriad.runtime.transcriptions.refine as refine
+
+    def never_agrees(system, sol, data, tolerance):
+        return dataclasses.replace(sol, simulated_cost=1e20, agreement=False, agreement_gap=1e19,
+                                   agreement_tolerance=tolerance)
+
+    monkeypatch.setattr(refine, "with_resimulation", never_agrees)
+    sol = solve(Decay(), Trapezoidal(intervals=4), tolerance=1e-2, resimulate=False)
+    r = sol.refinement
+    assert not r["met"] and "does not approach the discretised one" in r["reason"], r["reason"]
+    assert [h["gap"] for h in r["history"]][-2:] == [1e19, 1e19] and len(r["history"]) <= 3
