@@ -45,7 +45,7 @@ def _one(args) -> int:
     from ..configs import from_args, usage_message
     from .env import EnvOptions
     from .optimum import CertificationError
-    from .reference import reference_record
+    from .reference import reference_env, reference_record
 
     try:
         options = from_args(EnvOptions, args)
@@ -53,7 +53,8 @@ def _one(args) -> int:
         print(f"myriad rl-reference: error: {usage_message(e, EnvOptions)}", file=sys.stderr)
         return 2
     try:
-        r = reference_record(args.target, options, cache_dir=args.scores_dir)
+        system = reference_env(args.target, options).system  # the spec and the env checked before certifying
+        r = reference_record(system, options, cache_dir=args.scores_dir)
     except (KeyError, ValueError, OSError) as e:  # unknown name, unreadable spec, no bounds for a random policy
         print(f"myriad rl-reference: error: {args.target}: {e}", file=sys.stderr)
         return 2
@@ -72,11 +73,12 @@ def _one(args) -> int:
 
 
 def run(args) -> int:
-    from .._command_args import output_file_error
+    from .._command_args import output_file_error, output_folder_error
     from ..systems import NAMES
     from .reference import run as run_reference
 
-    if error := output_file_error(args.json, "--json"):  # before minutes of certifying
+    # Before minutes of certifying (a shipped record never touches the cache folder: checked all the same).
+    if error := output_file_error(args.json, "--json") or output_folder_error(args.scores_dir, "--scores-dir"):
         print(f"myriad rl-reference: error: {error}", file=sys.stderr)
         return 2
     if args.target is not None:
