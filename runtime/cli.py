@@ -68,11 +68,15 @@ _COMMANDS = {
     "sysid": "system identification: fit a model to trajectories, plan on it",
     "sweep": "systems x methods x seeds on one machine or a Ray cluster, as one table",
     "e2e": "end-to-end learning: imitate the true optimum through the planner (Algorithm 2)",
-    "rl-reference": "regenerate or check the RL reference scores",
+    "rl-reference": "reference scores of any spec (certified optimum, zero control, random); regenerate or check the "
+                    "shipped ones",
+    "dataset": "an offline dataset (Minari) of a policy's episodes in a system's env",
+    "imitate": "imitation baselines: behaviour cloning or DAgger from optimal demonstrations",
     "bench": "the reference table (published setting + best over transcriptions)",
 }
 # The package commands -> their package.
-_PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl"}
+_PACKAGE_COMMANDS = {"sysid": "sysid", "sweep": "sweep", "e2e": "e2e", "rl-reference": "rl", "dataset": "datasets",
+                     "imitate": "imitation"}
 
 
 def _parser(command: str | None = None):

@@ -14,7 +14,9 @@ from .gym import env_id as env_id
 from .gym import make as make
 from .gym import register as register
 from .gym import register_all as _register_all
+from .optimum import CertificationError as CertificationError
 from .reference import normalized_score as normalized_score
+from .reference import reference_record as reference_record
 from .reference import reference_scores as reference_scores
 
 _register_all()
@@ -22,5 +24,5 @@ _register_all()
 __all__ = [
     "Env", "EnvOptions", "EnvState", "Episode", "make_jax", "play",
     "MyriadEnv", "MyriadVectorEnv", "env_id", "make", "register",
-    "normalized_score", "reference_scores",
+    "CertificationError", "normalized_score", "reference_record", "reference_scores",
 ]

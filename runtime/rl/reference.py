@@ -1,20 +1,25 @@
-"""Reference scores: what trajectory optimisation, zero control and a random policy cost in each shipped env
-(README.md in this folder: how each is measured).
+"""Reference scores for any system: what the certified optimum, zero control and a random policy cost in the
+environment (README.md in this folder: how each is measured).
 
-    myriad rl-reference --write      # regenerate reference_scores.json (all 18 systems: about 20 minutes)
+    reference_record("peers/hager", EnvOptions(action_bound=3))  # computed once, then read from the cache
+    normalized_score("my/spec.yaml", -episode_return)            # any spec; 0 = random, 100 = certified optimum
+    myriad rl-reference --write      # regenerate reference_scores.json (the 18 shipped systems, default env)
     myriad rl-reference --check      # exit 1 when the shipped file is stale
 
-``normalized_score(system, J) = 100 (J_random - J) / (J_random - J_optimal)``: 0 is the random policy, 100 the
-optimiser's open-loop controls.
+``normalized_score(system, J) = 100 (J_random - J) / (J_random - J_optimal)``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
 import json
 import math
+import os
 import sys
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -26,24 +31,35 @@ from ..system import System
 from ..systems import NAMES
 from .env import Env, EnvOptions, play
 
-__all__ = ["FORMAT", "EPISODES", "SEED", "reference_env", "baseline_costs", "compute",
-           "reference_scores", "normalized_score", "stale"]
+__all__ = ["FORMAT", "ENV_VERSION", "EPISODES", "SEED", "CACHE_ENV_VAR", "reference_env", "baseline_costs",
+           "env_settings", "compute", "reference_record", "reference_cache_dir", "cache_key", "reference_scores",
+           "normalized_score", "stale"]
 
-FORMAT = 1  # of the JSON file; bump with a change of layout
+FORMAT = 2  # of a record and of the JSON file; bump with a change of layout or of how a record is measured
 ENV_VERSION = 0  # the -v0 of the Gymnasium ids: bump both when the env's definition changes
 EPISODES = 100
 SEED = 0
+CACHE_ENV_VAR = "MYRIAD_RL_REFERENCE_CACHE"  # a folder, else $MYRIAD_CACHE/rl-reference, else ~/.cache/myriad/...
 _FILE = "reference_scores.json"
 
 
-def reference_env(system: System) -> Env:
-    """The environment the scores are measured in: default options, controls in their own units."""
-    return Env(system, EnvOptions(normalize_actions=False))
+def _system(target: System | str | os.PathLike) -> System:
+    return target if isinstance(target, System) else load(os.fspath(target))
+
+
+def reference_env(system: System | str, options: EnvOptions | None = None) -> Env:
+    """The environment the scores are measured in: ``options`` (default :class:`EnvOptions`) with controls in their
+    own units, whole episodes (no ``max_steps``) from x0 exactly (no ``start_noise``): those three do not change
+    the control problem an episode's cost J measures, so they are not part of a record's key."""
+    options = EnvOptions() if options is None else options
+    return Env(_system(system), dataclasses.replace(options, normalize_actions=False, max_steps=None,
+                                                    start_noise=0.0))
 
 
 def _control_batch(env: Env, optimal: np.ndarray | None) -> jnp.ndarray:
     """(E + 1 [+ 1], N, m): the random episodes, zero control, then the optimal controls when given."""
     N, m = env.options.steps, env.action_size
+    env.require_finite_controls("a uniformly random policy has no distribution to draw from")
     lo, hi = env.control_bounds
     dtype = jax.dtypes.canonicalize_dtype(np.float64)
     draws = jax.random.uniform(jax.random.PRNGKey(SEED), (EPISODES, N, m), dtype)
@@ -53,11 +69,11 @@ def _control_batch(env: Env, optimal: np.ndarray | None) -> jnp.ndarray:
     return jnp.concatenate(parts)
 
 
-def baseline_costs(system: System, optimal_controls: Any = None) -> dict[str, Any]:
-    """The env costs of the random policy (mean, std), zero control and, if given, the (N, m) optimal controls.
-
-    One jit-compiled ``vmap`` over all episodes."""
-    env = reference_env(system)
+def baseline_costs(system: System | str, optimal_controls: Any = None,
+                   options: EnvOptions | None = None) -> dict[str, Any]:
+    """The env costs of the random policy (mean, std), zero control and, if given, the (N, m) optimal controls, in
+    :func:`reference_env` of ``options``. One jit-compiled ``vmap`` over all episodes."""
+    env = reference_env(system, options)
     batch = _control_batch(env, None if optimal_controls is None else np.asarray(optimal_controls))
     data = env.default_params()
     costs = np.asarray(jax.jit(jax.vmap(lambda u: play(env, u, data).cost))(batch))
@@ -68,60 +84,124 @@ def baseline_costs(system: System, optimal_controls: Any = None) -> dict[str, An
     return out
 
 
-def _played_controls(env: Env, sol) -> np.ndarray:
-    """A solution's control at the middle of each env step: (N, m)."""
-    T, N = float(env.system.horizon), env.options.steps
-    times = np.asarray(sol.times)
-    us = np.asarray(sol.controls)
-    tu = times if us.shape[0] == times.shape[0] else np.linspace(0.0, T, us.shape[0])
-    mid = (np.arange(N) + 0.5) * (T / N)
-    return np.stack([np.interp(mid, tu, us[:, j]) for j in range(us.shape[1])], axis=1)
+def env_settings(env: Env) -> dict[str, Any]:
+    """What defines the env's control problem (with the spec): the record's ``env`` and part of its key."""
+    o = env.options
+    return {"version": ENV_VERSION, "steps": o.steps, "integrator": o.integrator.label, "substeps": o.substeps,
+            "penalty": o.penalty, "hold": "zero-order", "action_bound": o.action_bound}
 
 
-def compute(name: str) -> dict[str, Any]:
-    """One system's record (solves every candidate: seconds to a minute)."""
-    from ..bench import ALTERNATIVES, PUBLISHED_SETTING, run_bench
-    from ..transcriptions import ForwardBackwardSweep
+def cache_key(system: System | str, options: EnvOptions | None = None) -> str:
+    """The SHA-256 (hex) of the spec's hash, the env's settings (the integrator's full repr, not only its label)
+    and the record's format, episodes and seed: a changed spec or setting is a new key."""
+    env = reference_env(system, options)
+    blob = {"spec_sha256": env.system.spec_sha256, "env": env_settings(env),
+            "integrator": repr(env.options.integrator), "format": FORMAT, "episodes": EPISODES, "seed": SEED}
+    return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()
 
-    system = load(name)
-    env = reference_env(system)
-    settings = {t.label: t for t in (PUBLISHED_SETTING, *ALTERNATIVES, ForwardBackwardSweep(intervals=1000))}
-    (row,) = run_bench([name])
-    best = None
-    for sol in (row.main, *row.alternatives):
-        if not sol.converged:
-            continue
-        controls = _played_controls(env, sol)
-        scores = baseline_costs(system, controls)
-        if math.isfinite(scores["optimal"]) and (best is None or scores["optimal"] < best[0]["optimal"]):
-            best = (scores, sol, controls)
-    if best is None:
-        raise RuntimeError(f"{name}: no transcription converged; no optimal reference")
-    scores, sol, controls = best
+
+def compute(target: System | str, options: EnvOptions | None = None) -> dict[str, Any]:
+    """One system's record, solved now (seconds to a minute), in float64 whatever the caller's JAX mode.
+
+    Raises:
+        CertificationError: the two methods do not certify an optimum (:func:`.optimum.certified_optimum`).
+        RuntimeError: a reference cost is not finite.
+    """
+    from .optimum import certified_optimum
+
+    with jax.enable_x64(True):
+        env = reference_env(target, options)
+        base = baseline_costs(env.system, None, options)
+        controls, certificate = certified_optimum(
+            env, lambda j: max(abs(j), abs(base["random"] - j), np.finfo(np.float64).tiny))
+        scores = baseline_costs(env.system, controls, options)
+    name = env.system.name
     if not all(math.isfinite(v) for v in scores.values()):  # JSON has no NaN/inf, and a score needs both ends
         raise RuntimeError(f"{name}: a reference cost is not finite: {scores}")
     return {
-        "spec_sha256": system.spec_sha256,
-        "sense": system.sense,
+        "system": name,
+        "spec_sha256": env.system.spec_sha256,
+        "sense": env.system.sense,
         "action_bound": env.options.action_bound,
-        "optimal": {
-            "cost": scores["optimal"],
-            "transcription": sol.transcription,
-            "setting": repr(settings[sol.transcription]),
-            "solver": sol.solver,
-            "solver_cost": sol.cost,
-            "simulated_cost": sol.simulated_cost,
-            "controls": controls.tolist(),
-        },
+        "env": env_settings(env),
+        "optimal": {"cost": scores["optimal"], "certificate": certificate, "controls": controls.tolist()},
         "zero_control": {"cost": scores["zero_control"]},
         "random": {"cost": scores["random"], "std": scores["random_std"], "episodes": EPISODES, "seed": SEED},
     }
 
 
+def reference_cache_dir() -> Path:
+    """``$MYRIAD_RL_REFERENCE_CACHE``, else ``$MYRIAD_CACHE/rl-reference``, else ``~/.cache/myriad/rl-reference``
+    (beside the compiled specs of :func:`myriad.runtime.loader.spec_build_dir`); safe to delete."""
+    if os.environ.get(CACHE_ENV_VAR):
+        return Path(os.path.expanduser(os.environ[CACHE_ENV_VAR]))
+    base = os.environ.get("MYRIAD_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "myriad")
+    return Path(base) / "rl-reference"
+
+
+_memo: dict[str, dict[str, Any]] = {}  # records of this process, by key
+
+
+def _shipped(env: Env) -> dict[str, Any] | None:
+    """The shipped record of a shipped system in the default env, if this is one (same spec and settings)."""
+    r = reference_scores()["systems"].get(env.system.name)
+    if r is not None and r["spec_sha256"] == env.system.spec_sha256 and r.get("env") == env_settings(env) \
+            and env.options.integrator == EnvOptions().integrator:
+        return r
+    return None
+
+
+def _cached(path: Path, env: Env) -> dict[str, Any] | None:
+    """The record at ``path`` if it is there, parses and is this spec's in these settings (else None: computed
+    again and overwritten; the writes are atomic, so only a hand-edited or foreign file fails this)."""
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    ok = isinstance(record, dict) and record.get("spec_sha256") == env.system.spec_sha256 \
+        and record.get("env") == env_settings(env)
+    return record if ok else None
+
+
+def reference_record(target: System | str | os.PathLike, options: EnvOptions | None = None, *,
+                     cache_dir: str | os.PathLike | None = None) -> dict[str, Any]:
+    """The reference record of any system (a ``System``, a shipped name, ``peers/<name>`` or a spec path) in
+    :func:`reference_env` of ``options``: the certified optimum (its cost, controls and certificate), zero
+    control, the random policy, the spec's hash and the env's settings.
+
+    Read from the shipped JSON (a shipped system, default settings), else from ``cache_dir`` (default
+    :func:`reference_cache_dir`; a file ``<cache_key>.json``), else computed (:func:`compute`) and written there
+    atomically.
+
+    Raises:
+        CertificationError: computing, the two methods did not certify an optimum.
+        ValueError: a control without finite bounds and no ``action_bound`` (a random policy needs bounds).
+    """
+    env = reference_env(target, options)
+    env.require_finite_controls("a uniformly random policy has no distribution to draw from")
+    shipped = _shipped(env)
+    if shipped is not None:
+        return shipped
+    key = cache_key(env.system, options)
+    if key in _memo:
+        return _memo[key]
+    path = Path(cache_dir if cache_dir is not None else reference_cache_dir()) / f"{key}.json"
+    record = _cached(path, env)
+    if record is None:
+        from ..atomic import atomic_write_text
+
+        record = compute(env.system, options)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(record) + "\n")
+    _memo[key] = record
+    return record
+
+
 def _env_record() -> dict[str, Any]:
-    o = EnvOptions()
-    return {"version": ENV_VERSION, "steps": o.steps, "integrator": o.integrator.label, "substeps": o.substeps,
-            "penalty": o.penalty, "hold": "zero-order"}
+    """The shipped file's env: the default settings (each record carries its own, with its action bound)."""
+    settings = env_settings(Env(load("van_der_pol"), EnvOptions(normalize_actions=False)))
+    del settings["action_bound"]
+    return settings
 
 
 def _dumps(doc: dict[str, Any]) -> str:
@@ -138,16 +218,25 @@ def _dumps(doc: dict[str, Any]) -> str:
 
 
 def write(path, names=NAMES, previous: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Compute ``names`` and write the file; the other shipped systems keep their ``previous`` records."""
+    """Compute ``names`` (:func:`compute`, default env) and write the file; the other shipped systems keep their
+    ``previous`` records."""
     from ..atomic import atomic_write_text
+    from .optimum import CertificationError
 
-    fresh = {}
+    fresh, failed = {}, []
     for name in names:
-        fresh[name] = r = compute(name)
-        print(f"{name:18s} optimal {r['optimal']['cost']:.6g} ({r['optimal']['transcription']}) "
-              f"zero {r['zero_control']['cost']:.6g} random {r['random']['cost']:.6g}")
+        try:
+            fresh[name] = r = compute(name)
+        except CertificationError as e:  # the others are still written; the file is then stale (exit 1)
+            print(f"{name:18s} NOT CERTIFIED: {e}", file=sys.stderr, flush=True)
+            failed.append(name)
+            continue
+        c = r["optimal"]["certificate"]
+        print(f"{name:18s} optimal {r['optimal']['cost']:.10g} (ipopt/interior point agree to {c['agreement']:.1e}, "
+              f"{c['start']} start) zero {r['zero_control']['cost']:.6g} random {r['random']['cost']:.6g}",
+              flush=True)
     previous = previous or {}
-    systems = {n: fresh.get(n, previous.get(n)) for n in NAMES if n in fresh or n in previous}
+    systems = {n: fresh.get(n, previous.get(n)) for n in NAMES if n in fresh or (n in previous and n not in failed)}
     doc = {"format": FORMAT, "generated_by": "myriad rl-reference --write", "env": _env_record(),
            "systems": systems}
     atomic_write_text(path, _dumps(doc))
@@ -156,21 +245,16 @@ def write(path, names=NAMES, previous: dict[str, Any] | None = None) -> dict[str
 
 @functools.cache
 def reference_scores() -> dict[str, Any]:
-    """The shipped reference scores (the parsed JSON)."""
+    """The shipped reference scores (the parsed JSON): :func:`compute`'s records of the 18 shipped systems in the
+    default env. Any other system or setting: :func:`reference_record`."""
     return json.loads(resources.files(__package__).joinpath(_FILE).read_text(encoding="utf-8"))
 
 
-def normalized_score(system: System | str, cost: float) -> float:
-    """100 (J_random - J) / (J_random - J_optimal) for a cost J = -return in the default env (minimisation form).
-
-    Raises:
-        KeyError: a system without reference scores (only the shipped systems have them).
-    """
-    name = system.name if isinstance(system, System) else system
-    table = reference_scores()["systems"]
-    if name not in table:
-        raise KeyError(f"no reference scores for {name!r}: they exist for the shipped systems ({', '.join(table)})")
-    r = table[name]
+def normalized_score(target: System | str | os.PathLike, cost: float, options: EnvOptions | None = None) -> float:
+    """100 (J_random - J) / (J_random - J_optimal) for a cost J = -return (minimisation form) in the env of
+    ``options`` (default settings when None), for any system: the record is :func:`reference_record`'s (shipped,
+    cached, or computed now: seconds to a minute the first time)."""
+    r = reference_record(target, options)
     j_random, j_opt = r["random"]["cost"], r["optimal"]["cost"]
     return 100.0 * (j_random - float(cost)) / (j_random - j_opt)
 
@@ -190,8 +274,8 @@ def stale(doc: dict[str, Any] | None = None, names=NAMES, rtol: float = 1e-9) ->
         if r is None:
             continue
         system = load(name)
-        if r["spec_sha256"] != system.spec_sha256 or r["action_bound"] != reference_env(system).options.action_bound:
-            problems.append(f"{name}: spec or action bound changed")
+        if r["spec_sha256"] != system.spec_sha256 or r.get("env") != env_settings(reference_env(system)):
+            problems.append(f"{name}: spec or env settings (action bound included) changed")
             continue
         now = baseline_costs(system, r["optimal"]["controls"])
         for key, old in (("optimal", r["optimal"]["cost"]), ("zero_control", r["zero_control"]["cost"]),

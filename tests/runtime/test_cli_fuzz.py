@@ -33,7 +33,9 @@ _WORK = {
     "sysid": "myriad.runtime.sysid.run.run_sysid",
     "e2e": "myriad.runtime.e2e.train.run_e2e",
     "sweep": "myriad.runtime.sweep.run.run_sweep",
-    "rl-reference": "myriad.runtime.rl.reference.run",
+    "rl-reference": "myriad.runtime.rl.reference.reference_record",  # the fuzz always passes a NAME
+    "dataset": "myriad.runtime.datasets.run.run_dataset",
+    "imitate": "myriad.runtime.imitation.run.run_imitation",
 }
 # A valid value of each positional, by its metavar (a system with learnable parameters: sysid and e2e need one).
 _POSITIONAL = {"NAME|PATH": "van_der_pol"}

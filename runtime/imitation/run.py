@@ -1,0 +1,189 @@
+"""One imitation experiment: demonstrations, a behaviour-cloning fit (and DAgger after it), the score in the env.
+
+    report = run_imitation("van_der_pol", ImitateConfig(method="dagger", demos=20, seed=0))
+    report.record()["normalized_score"]
+
+The demonstrations are the optimal policy's episodes from ``runtime/datasets`` (:func:`~myriad.runtime.datasets.collect`
+with ``policy="optimal"``: the certified plan from each episode's start, the starts perturbed by ``start_noise`` so
+that the demonstrations are more than one trajectory repeated), or a dataset that ``myriad dataset`` wrote. The last
+``held_out`` fraction of them (at least one; with a single demonstration, every fifth step of it) is held out for
+early stopping. Everything is drawn from ``seed``: the same seed, the same record.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from typing import Any, Literal
+
+import jax
+import numpy as np
+
+from ..configs import to_json
+from ..learn.loop import Stop
+from ..loader import load
+from ..rl.env import EnvOptions
+from ..rl.reference import reference_env
+from ..system import System
+from .dagger import DaggerConfig, dagger
+from .expert import Expert
+from .fit import FitConfig, Pairs, fit
+from .policy import Policy
+from .rollout import score
+
+__all__ = ["ImitateConfig", "ImitationReport", "demonstrations", "run_imitation"]
+
+
+@dataclasses.dataclass(frozen=True)
+class ImitateConfig:
+    """An imitation experiment (module docstring).
+
+    Attributes:
+        method: ``bc`` (behaviour cloning) or ``dagger`` (behaviour cloning, then DAgger with the optimiser as expert).
+        demos: the number of optimal demonstrations (episodes).
+        seed: every draw's: the demonstrations' starts, the network's initialisation, DAgger's rollouts.
+        start_noise: the demonstrations' (and DAgger's rollouts') start perturbation: x0 + start_noise * s * U(-1, 1).
+        held_out: the fraction of the demonstrations held out for early stopping.
+        fit: the fit's settings (learning rate, epochs, patience, network; ``--set fit.epochs=...``).
+        dagger: DAgger's schedule (iterations, rollouts, beta, beta_decay; ``--set dagger.iterations=...``).
+        mismatch: the score under mismatch: the env's uncertain parameters off by +-this fraction.
+        noise: the score under observation noise: noise * s * N(0, 1) added to the observed state.
+        score_episodes: seeded episodes of each of the mismatch and noise scores.
+    """
+
+    method: Literal["bc", "dagger"] = "bc"
+    demos: int = 20
+    seed: int = 0
+    start_noise: float = 0.1
+    held_out: float = 0.2
+    fit: FitConfig = FitConfig()
+    dagger: DaggerConfig = DaggerConfig()
+    mismatch: float = 0.1
+    noise: float = 0.02
+    score_episodes: int = 3
+
+    def __post_init__(self):
+        if self.method not in ("bc", "dagger"):
+            raise ValueError(f"method must be bc or dagger, got {self.method!r}")
+        for name in ("demos", "score_episodes"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.held_out, bool) or not 0.0 < self.held_out < 1.0:
+            raise ValueError(f"held_out must be a fraction in (0, 1), got {self.held_out!r}")
+        for name in ("start_noise", "mismatch", "noise"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < np.inf:
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ImitationReport:
+    """What :func:`run_imitation` returns; :meth:`record` is the command's JSON."""
+
+    system: System
+    config: ImitateConfig
+    policy: Policy
+    net: Any
+    status: Stop
+    message: str
+    scores: dict
+    fit_history: list  # the behaviour-cloning fit's (epoch, training loss, held-out loss)
+    history: list  # DAgger's (iteration, held-out loss, nominal env cost), iteration 0 the behaviour-cloning start
+    seconds: dict
+    counts: dict
+
+    @property
+    def failed(self) -> bool:
+        return not self.status.success
+
+    def record(self) -> dict[str, Any]:
+        """The JSON record (a non-finite number as null: strict JSON has none)."""
+        config = self.config
+        return _finite({"system": self.system.name, "spec_sha256": self.system.spec_sha256, "method": config.method,
+                        "demos": config.demos, "seed": config.seed, "status": self.status.value,
+                        "message": self.message, **self.scores, "seconds": self.seconds, **self.counts,
+                        "fit_epochs": len(self.fit_history), "dagger_history": [list(r) for r in self.history],
+                        "config": to_json(config)})
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return None if isinstance(value, float) and not np.isfinite(value) else value
+
+
+def demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None = None):
+    """The demonstrations' observations (E, N, d) and controls (E, N, m), in the env's units (module docstring)."""
+    if dataset is not None:
+        from ..datasets.storage import load_dataset
+
+        episodes, _ = load_dataset(dataset, system)
+        if len(episodes) < config.demos:
+            raise ValueError(f"--dataset {dataset}: {len(episodes)} episodes, fewer than --demos {config.demos}")
+    else:
+        from ..datasets import Perturbation, collect
+
+        episodes = collect(system, "optimal", episodes=config.demos, seed=config.seed,
+                           options=EnvOptions(normalize_actions=False), perturb=Perturbation(start=config.start_noise))
+    obs, actions = episodes.observations[: config.demos, :-1], episodes.actions[: config.demos]
+    if episodes.info["options"].get("normalize_actions", True):  # actions in [-1, 1]: the env's map onto the controls
+        lo, hi = reference_env(system).control_bounds
+        actions = lo + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (hi - lo)
+    return np.asarray(obs, np.float64), np.asarray(actions, np.float64)
+
+
+def _split(policy: Policy, obs: np.ndarray, controls: np.ndarray, fraction: float) -> tuple[Pairs, Pairs]:
+    """Training and held-out pairs: the last ``fraction`` of the episodes (at least one), or of one episode's
+    steps (every fifth)."""
+    actions = np.asarray(policy.normalise(controls))
+    E = obs.shape[0]
+    flat = lambda a: a.reshape(-1, a.shape[-1])  # noqa: E731
+    if E == 1:
+        held = np.arange(obs.shape[1]) % 5 == 4
+        return Pairs.of(obs[0][~held], actions[0][~held]), Pairs.of(obs[0][held], actions[0][held])
+    n = min(E - 1, max(1, round(fraction * E)))
+    return Pairs.of(flat(obs[:-n]), flat(actions[:-n])), Pairs.of(flat(obs[-n:]), flat(actions[-n:]))
+
+
+def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = ImitateConfig(), *,
+                  dataset: str | os.PathLike | None = None, checkpoint_dir: str | os.PathLike | None = None,
+                  resume: bool = False, progress: bool | None = None) -> ImitationReport:
+    """Imitate the optimal policy of ``target`` as ``config`` says and score the result (module docstring).
+
+    Checkpoints go to ``checkpoint_dir/bc`` and ``checkpoint_dir/dagger``; ``resume`` continues from them."""
+    if not isinstance(config, ImitateConfig):
+        raise TypeError(f"run_imitation: config must be an ImitateConfig, got {type(config).__name__}")
+    system = target if isinstance(target, System) else load(target)
+    env = reference_env(system)
+    policy = Policy.of(env, config.fit.width, config.fit.depth)
+    seconds, counts = {}, {}
+    t = time.perf_counter()
+    obs, controls = demonstrations(system, config, dataset)
+    seconds["demonstrations"] = time.perf_counter() - t
+    train_pairs, held_out = _split(policy, obs, controls, config.held_out)
+    sub = (lambda name: None) if checkpoint_dir is None else (lambda name: os.path.join(checkpoint_dir, name))
+    t = time.perf_counter()
+    bc = fit(policy, policy.init(jax.random.PRNGKey(config.seed)), train_pairs, held_out, config.fit,
+             checkpoint_dir=sub("bc"), resume=resume, progress=progress, desc=f"bc {system.name}")
+    seconds["bc"] = time.perf_counter() - t
+    net, status, message, history = bc.net, bc.stop, bc.message, []
+    if config.method == "dagger" and bc.stop.success:
+        t = time.perf_counter()
+        run = dagger(env, policy, bc.net, train_pairs, held_out, Expert(env), config.dagger, config.fit,
+                     seed=config.seed, checkpoint_dir=sub("dagger"), resume=resume, progress=progress)
+        seconds["dagger"] = time.perf_counter() - t
+        net, status, message = run.net, run.stop, run.message
+        history = run.history
+        counts = {"expert_labels": run.labels, "expert_failures": run.failures}
+    t = time.perf_counter()
+    scores = score(env, policy, net, mismatch=config.mismatch, noise=config.noise, episodes=config.score_episodes)
+    seconds["score"] = time.perf_counter() - t
+    if status.success and not np.isfinite(scores["episode_return"]):  # finite losses, yet the policy overflows
+        status, message = Stop.NON_FINITE, f"the policy's episode return is {scores['episode_return']}"
+    return ImitationReport(system, config, policy, net, status, message, scores, bc.history, history, seconds, counts)
