@@ -14,6 +14,7 @@ import re
 
 import sympy
 
+from .checks_schema3 import check_uncertainty
 from .errors import ErrorLog, Location, SpecError
 from .expressions import CONSTANTS, FUNCTIONS
 from .schema import ProblemSpec, SymbolicProblem
@@ -142,6 +143,7 @@ def check_problem(sym: SymbolicProblem, log: ErrorLog) -> None:
     for field, e, src in exprs:
         if e is not None:
             log.attempt(_check_value, spec, field, e, src)
+    check_uncertainty(sym, log)  # schema 3; nothing to check in an earlier schema's spec
 
 
 def _check_bounds(spec: ProblemSpec, var, lo: float | None, hi: float | None) -> None:

@@ -14,6 +14,7 @@ import sympy
 
 from .errors import CodegenError
 from .optimal_control import Derived, _d, derive
+from .parse_schema3 import DEFAULT_SAMPLES, DEFAULT_SEED
 from .printer import StrictJaxPrinter
 from .schema import CodegenData, CodegenFunction, SymbolicProblem
 
@@ -124,6 +125,37 @@ def _schema2_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
         ("path_constraint_kinds", _lit(tuple(path_kind(e, sym) for e in sym.path))),
         ("path_lower", _lit(sym.path_lower)),
         ("path_upper", _lit(sym.path_upper)),
+    )
+
+
+def _schema3_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
+    """The schema 3 attributes (the interface of issue 30, in runtime/system.py), written only into schema 3 modules:
+    an earlier schema's module keeps its bytes and inherits the empty defaults."""
+    spec = sym.spec
+    if spec.schema < 3:
+        return ()
+    uncertain = [p for p in spec.parameters if p.uncertain is not None]
+    order = [p.name for p in uncertain]
+    rows = tuple(tuple(dict((n, v) for n, v, _ in s.values)[name] for name in order) for s in spec.scenarios)
+    robust, noise = spec.robust, spec.noise
+
+    def per_state(levels):
+        if levels is None:
+            return ()
+        given = {lv.state: lv.level for lv in levels}
+        return tuple(float(given.get(s.name, 0.0)) for s in spec.states)
+
+    return (
+        ("uncertain_params", _lit(tuple(order))),
+        ("uncertain_kinds", _lit(tuple(p.uncertain.kind for p in uncertain))),
+        ("uncertain_args", _lit(tuple(tuple(float(a) for a in p.uncertain.args) for p in uncertain))),
+        ("scenarios", _lit(tuple(tuple(float(v) for v in row) for row in rows))),
+        ("robust_objective", _lit(robust.objective if robust else None)),
+        ("robust_alpha", _lit(robust.alpha if robust else None)),
+        ("robust_samples", _lit(robust.samples if robust else DEFAULT_SAMPLES)),
+        ("robust_seed", _lit(robust.seed if robust else DEFAULT_SEED)),
+        ("process_noise", _lit(per_state(noise.process if noise else None))),
+        ("observation_noise", _lit(per_state(noise.observation if noise else None))),
     )
 
 
@@ -262,6 +294,7 @@ def _metadata(sym: SymbolicProblem, d, display_path: str) -> tuple:
         ("optimal_control_kind", _lit(d.u_star_kind)),
         ("optimal_control_note", _lit(d.u_star_note)),
         ("reference", _lit(dict(spec.reference))),
+        *_schema3_metadata(sym),
     )
 
 

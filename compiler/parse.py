@@ -11,8 +11,8 @@ from typing import Any
 
 import yaml
 
-from . import parse_schema2
-from .errors import ErrorLog, Location, SpecError
+from . import parse_schema2, parse_schema3
+from .errors import ErrorLog, Location, SpecError, Unresolved
 from .schema import SUPPORTED_SCHEMAS, Expr, Named, Parameter, ProblemSpec, Variable
 
 __all__ = ["parse_spec", "parse_file"]
@@ -22,9 +22,10 @@ MAX_SPEC_BYTES = 1_000_000
 TOP_FIELDS = {
     "schema": True, "name": True, "title": True, "description": True, "source": False, "parameters": False,
     "definitions": False, "states": True, "controls": True, "dynamics": True, "cost": True, "horizon": True,
-    "reference": False, "path_constraints": False,
+    "reference": False, "path_constraints": False, "scenarios": False, "robust": False, "noise": False,
 }
-PARAM_FIELDS = {"value": True, "description": False, "units": False, "learnable": False, "guess": False}
+PARAM_FIELDS = {"value": True, "description": False, "units": False, "learnable": False, "guess": False,
+                "uncertain": False, "bounds": False}
 STATE_FIELDS = {"initial": True, "final": False, "bounds": False, "description": False, "units": False}
 CONTROL_FIELDS = {"bounds": False, "description": False, "units": False}
 COST_FIELDS = {"sense": True, "running": True, "terminal": False}
@@ -66,6 +67,7 @@ class _Reader:
         self.lines = tuple(text.splitlines())
         self._loader = yaml.SafeLoader("")
         self.log = ErrorLog()
+        self.schema = 1  # the file's schema, once read: parameters check their schema 3 fields against it
 
     def loc(self, node: yaml.Node, path: tuple[str, ...]) -> Location:
         return Location(self.file, node.start_mark.line + 1, node.start_mark.column + 1, path)
@@ -238,6 +240,9 @@ def _read_spec(r: _Reader, text: str, file: str) -> ProblemSpec | None:
         "path_constraints": lambda n: parse_schema2.path_constraints(r, n),
         "reference": lambda n: _reference(r, n),
     }
+    if schema >= 3:  # in an earlier schema's file these fields are errors (require_schema3), and are not read
+        readers.update(scenarios=lambda n: parse_schema3.scenarios(r, n), robust=lambda n: parse_schema3.robust(r, n),
+                       noise=lambda n: parse_schema3.noise(r, n))
     # Each section on its own: an error in one is recorded and the others are still read.
     f = {key: r.log.attempt(read, top[key][1]) for key, read in readers.items() if key in top}
     if r.log.errors:
@@ -251,6 +256,8 @@ def _read_spec(r: _Reader, text: str, file: str) -> ProblemSpec | None:
         dynamics=tuple(f["dynamics"]), dynamics_loc=r.loc(top["dynamics"][1], ("dynamics",)), sense=f["cost"][0],
         running=f["cost"][1], terminal=f["cost"][2], horizon=horizon, reference=tuple(f.get("reference", ())),
         free_horizon=free_horizon, path_constraints=f.get("path_constraints", ()),
+        scenarios=f["scenarios"][0] if "scenarios" in f else (), scenarios_loc=f["scenarios"][1] if "scenarios" in f
+        else None, robust=f.get("robust"), noise=f.get("noise"),
     )
 
 
@@ -313,6 +320,8 @@ def _schema(r: _Reader, top: dict) -> int:
         raise r.error(f"unsupported schema {got}; this compiler reads {versions} (a number)",
                       r.loc(schema_node, ("schema",)))
     parse_schema2.require_schema2(r, schema, top)
+    r.schema = schema
+    parse_schema3.require_schema3(r, schema, top)
     return schema
 
 
@@ -326,7 +335,12 @@ def _parameter(r: _Reader, key: str, kn: yaml.Node, vn: yaml.Node) -> Parameter:
     path = ("parameters", key)
     if isinstance(vn, yaml.ScalarNode):  # shorthand `k: 0.5`
         return Parameter(key, r.loc(kn, path), r.expr(vn, path + ("value",)))
-    f = {k: v for k, _, v in r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")}
+    keys = r.mapping(vn, path, PARAM_FIELDS, f"parameter `{_show(key)}`")
+    f = {k: v for k, _, v in keys}
+    for k, k_node, _ in keys:
+        if k in parse_schema3.SCHEMA3_PARAM_FIELDS:
+            r.log.attempt(parse_schema3.require_schema3_param, r, key, k, k_node)
+    schema3 = _parameter_schema3(r, key, f) if r.schema >= 3 else {}
     learnable = r.boolean(f["learnable"], path + ("learnable",)) if "learnable" in f else False
     guess = r.expr(f["guess"], path + ("guess",)) if "guess" in f else None
     if learnable and guess is None:
@@ -340,8 +354,19 @@ def _parameter(r: _Reader, key: str, kn: yaml.Node, vn: yaml.Node) -> Parameter:
         description=(r.text(f["description"], path + ("description",), "a description")
                      if "description" in f else ""),
         units=r.text(f["units"], path + ("units",), "units") if "units" in f else "",
-        learnable=learnable, guess=guess,
+        learnable=learnable, guess=guess, **schema3,
     )
+
+
+def _parameter_schema3(r: _Reader, key: str, f: dict) -> dict:
+    """A schema 3 parameter's `uncertain` and `bounds`, as keyword arguments of :class:`Parameter`; both are read
+    (and their errors recorded) before either stops the parameter."""
+    uncertain = r.log.attempt(parse_schema3.distribution, r, f["uncertain"], key) if "uncertain" in f else None
+    bounds = r.log.attempt(parse_schema3.param_bounds, r, f["bounds"], key) if "bounds" in f else None
+    if ("uncertain" in f and uncertain is None) or ("bounds" in f and bounds is None):
+        raise Unresolved  # recorded above
+    (lo_hi, loc) = bounds if bounds else (None, None)
+    return {"uncertain": uncertain, "bounds": lo_hi, "bounds_loc": loc}
 
 
 def _cost(r: _Reader, node: yaml.Node) -> tuple:

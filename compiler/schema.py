@@ -10,10 +10,10 @@ from typing import Any
 
 from .errors import Location
 
-# The newest schema this compiler reads; every version in SUPPORTED_SCHEMAS is read (schema 1 files stay valid and
-# compile to the same bytes as before schema 2 existed).
-SCHEMA_VERSION = 2
-SUPPORTED_SCHEMAS = (1, 2)
+# The newest schema this compiler reads; every version in SUPPORTED_SCHEMAS is read (schema 1 and 2 files stay valid
+# and compile to the same bytes as before the later schemas existed).
+SCHEMA_VERSION = 3
+SUPPORTED_SCHEMAS = (1, 2, 3)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +38,16 @@ class Expr:
 
 
 @dataclasses.dataclass(frozen=True)
+class Distribution:
+    """Schema 3: a parameter's ``uncertain: {KIND: [numbers]}``, numbers as YAML gave them (no expressions)."""
+
+    kind: str  # "uniform" | "normal" | "lognormal" | "choice"
+    args: tuple[float, ...]  # (lo, hi) | (mean, std) | (mu, sigma) | (v1, ...)
+    loc: Location  # the list of numbers
+    arg_locs: tuple[Location, ...]
+
+
+@dataclasses.dataclass(frozen=True)
 class Parameter:
     name: str
     loc: Location
@@ -46,6 +56,51 @@ class Parameter:
     units: str = ""
     learnable: bool = False
     guess: Expr | None = None
+    # Schema 3: the distribution of an uncertain parameter, and its physical domain `bounds: [lo, hi]` (numbers).
+    uncertain: Distribution | None = None
+    bounds: tuple[float, float] | None = None
+    bounds_loc: Location | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """Schema 3: one explicit scenario, ``{name: value, ...}`` in the order written."""
+
+    loc: Location
+    values: tuple[tuple[str, float, Location], ...]  # (parameter, value, where its key is)
+
+
+@dataclasses.dataclass(frozen=True)
+class Robust:
+    """Schema 3: ``robust: {objective: mean | worst | {cvar: alpha}, samples: N, seed: S}``."""
+
+    loc: Location
+    objective: str  # "mean" | "worst" | "cvar"
+    alpha: float | None  # cvar's alpha, else None
+    alpha_loc: Location | None
+    samples: int
+    seed: int
+    # Where `samples` and `seed` were written; None where they took their defaults.
+    samples_loc: Location | None = None
+    seed_loc: Location | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseLevel:
+    """Schema 3: one state's entry under `noise.process` or `noise.observation`."""
+
+    state: str
+    level: float
+    loc: Location  # the state's key
+
+
+@dataclasses.dataclass(frozen=True)
+class Noise:
+    """Schema 3: ``noise: {process: {STATE: sigma}, observation: {STATE: std}}``; None where a part is absent."""
+
+    loc: Location
+    process: tuple[NoiseLevel, ...] | None = None
+    observation: tuple[NoiseLevel, ...] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,6 +179,11 @@ class ProblemSpec:
     # Schema 2 only; the defaults are what a schema 1 spec means.
     free_horizon: FreeHorizon | None = None
     path_constraints: tuple[PathConstraint, ...] = ()
+    # Schema 3 only (uncertainty); the defaults are what a schema 1 or 2 spec means.
+    scenarios: tuple[Scenario, ...] = ()
+    scenarios_loc: Location | None = None
+    robust: Robust | None = None
+    noise: Noise | None = None
 
 
 @dataclasses.dataclass(frozen=True)

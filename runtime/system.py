@@ -103,6 +103,20 @@ class System:
     path_lower: ClassVar[tuple[float, ...]] = ()
     path_upper: ClassVar[tuple[float, ...]] = ()
 
+    # Schema 3 (uncertainty, issue 30; specs/README.md says what each means). Written only into schema 3 modules;
+    # these defaults mean "nothing uncertain, no noise".
+    uncertain_params: ClassVar[tuple[str, ...]] = ()  # names, in the spec's parameter order
+    uncertain_kinds: ClassVar[tuple[str, ...]] = ()  # "uniform" | "normal" | "lognormal" | "choice", one each
+    uncertain_args: ClassVar[tuple[tuple[float, ...], ...]] = ()  # (lo, hi) | (mean, std) | (mu, sigma) | (v1, ...)
+    # Explicit scenarios: each row the values of uncertain_params in that order.
+    scenarios: ClassVar[tuple[tuple[float, ...], ...]] = ()
+    robust_objective: ClassVar[str | None] = None  # None (no `robust:`), "mean", "worst" or "cvar"
+    robust_alpha: ClassVar[float | None] = None  # cvar's alpha in (0, 1)
+    robust_samples: ClassVar[int] = 16  # scenarios drawn when `scenarios` is absent
+    robust_seed: ClassVar[int] = 0
+    process_noise: ClassVar[tuple[float, ...]] = ()  # () or one sigma per state (0.0 where not listed)
+    observation_noise: ClassVar[tuple[float, ...]] = ()  # () or one std per state (0.0 where not listed)
+
     # ---- identity: stateless, so equal iff same class (lets a system be a static jit argument) -------------
     def __eq__(self, other: object) -> bool:
         return type(self) is type(other)
@@ -128,6 +142,11 @@ class System:
     def n_path(self) -> int:
         """The number of path constraints (0 for schema 1 systems)."""
         return len(self.path_constraint_names)
+
+    @property
+    def uncertain(self) -> bool:
+        """True when the spec declares uncertain parameters, explicit scenarios or a robust objective (schema 3)."""
+        return bool(self.uncertain_params or self.scenarios or self.robust_objective is not None)
 
     def require_schema1_features(self, method: str) -> None:
         """Refuse a system whose path constraints or free final time ``method`` would silently ignore.
