@@ -235,8 +235,9 @@ def _phase_meter(progress: bool | None, name: str, config: SysidConfig) -> NoPro
 def _fit_words(config: SysidConfig, r: int) -> str:
     """What round ``r`` does, for its progress line."""
     settings = config.fit if r == 0 or config.refit is None else config.refit
+    epochs = f"{settings.epochs} epoch{'s' * (settings.epochs != 1)}"
     how = ("by least squares" if config.method == "least_squares" else
-           f"by Adam, {settings.epochs} epochs" + (" (the first compiles the training step)" if r == 0 else ""))
+           f"by Adam, {epochs}" + (" (the first compiles the training step)" if r == 0 else ""))
     again = "sampling around the plan, " if r else ""
     return f"round {r + 1}/{config.rounds}: {again}fitting {how}, then planning on the model"
 
