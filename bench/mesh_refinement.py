@@ -150,7 +150,7 @@ def report(row: dict, check: float | None = None) -> None:
 def table(rows: list[dict], check: float) -> str:
     """The peer rows as a markdown table, each judged (:func:`verdict`) against the current BEST_KNOWN: a table
     re-made from earlier runs' JSON (``--table``) sees a best known figure found since."""
-    lines = ["| problem | cost | best known | source | relative gap | verdict | final grid | seconds |",
+    lines = ["| problem | cost | best known | source | relative gap | verdict | grids (first, last) | seconds |",
              "|---|---|---|---|---|---|---|---|"]
     for row in rows:
         if "record" in row:
@@ -158,7 +158,8 @@ def table(rows: list[dict], check: float) -> str:
             row = row | {"best_known": best, "source": source,
                          "relative_gap": (row["record"]["cost"] - best) / abs(best)}
             cells = [f"{row['record']['cost']:.10g}", f"{best:.10g}", source, f"{row['relative_gap']:.1e}",
-                     verdict(row, check), str(row["record"]["intervals"]), f"{row['seconds']:.0f}"]
+                     verdict(row, check), f"{row['record']['refinement']['history'][0]['intervals']}, "
+                     f"{row['record']['intervals']}", f"{row['seconds']:.0f}"]
         else:
             cells = ["-", "-", "-", "-", verdict(row, check), "-", "-"]
         lines.append(f"| {row['system']} | " + " | ".join(cells) + " |")
