@@ -102,9 +102,14 @@ class Results:
         if path and os.path.exists(path):
             with open(path, encoding="utf-8") as f:
                 old = json.load(f)
-            if old.get("format") != FORMAT or old.get("settings") != settings:
-                raise ValueError(f"--json {path} holds rows of other settings ({old.get('settings')}); give another "
-                                 "file, or the same --set values, to resume it")
+            theirs = old.get("settings") or {}
+            differ = sorted(k for k in theirs.keys() & settings.keys() if theirs[k] != settings[k])
+            if old.get("format") != FORMAT or differ:
+                raise ValueError(f"--json {path} holds rows of other settings ({', '.join(differ) or 'format'}: "
+                                 f"{ {k: theirs[k] for k in differ} }); give another file, or the same --set values, "
+                                 "to resume it")
+            # A field added to (or gone from) ImitateConfig since: its default did not make the old rows.
+            old["settings"] = {**theirs, **settings}
             self.data = old
         self._done = {self.key(r) for r in self.data["rows"]}
 

@@ -92,6 +92,8 @@ def test_a_killed_table_keeps_its_rows_and_a_rerun_runs_the_rest(tmp_path):
     assert again == []  # nothing left
     with pytest.raises(ValueError, match="other settings"):
         te.Results(path, {"fit": "other"})
+    grown = te.Results(path, {"fit": "tiny", "e2e": "new"})  # a field ImitateConfig gained since: its default
+    assert len(grown.data["rows"]) == 16 and grown.done("simple_case", "bc", 10, 3)
 
     agg = te.aggregate(results, ["simple_case"], ["bc", "dagger"], [1, 10])
     cell = agg["per"]["simple_case|bc|10"]
