@@ -1,10 +1,11 @@
 """Pass 3, checks, for the schema 3 fields: the uncertainty agrees with the rest of the spec.
 
-Each distribution lies inside its parameter's physical domain (`bounds:`) and holds its nominal value where its support
-is bounded; no parameter the compiler fixed at compile time (``structural_params``) is uncertain; every scenario names
-each uncertain parameter and nothing else, with values its distribution can take; `robust` has something to be robust
-to; noise is on declared states. What a field means on its own (std > 0, lo < hi, ...) was checked when it was read
-(:mod:`.parse_schema3`). Every problem is recorded on its own.
+The values first: a range lo < hi, a standard deviation > 0, parameter bounds in order, alpha in (0, 1), a sample
+count and seed in range, noise levels >= 0. Then the agreement: each distribution lies inside its parameter's
+physical domain (`bounds:`) and holds its nominal value where its support is bounded; no parameter the compiler fixed
+at compile time (``structural_params``) is uncertain; every scenario names each uncertain parameter and nothing else,
+with values its distribution can take; `robust` has something to be robust to; noise is on declared states. The
+parse pass (:mod:`.parse_schema3`) checked only structure and types. Every problem is recorded on its own.
 """
 
 from __future__ import annotations
@@ -14,7 +15,11 @@ import math
 from .errors import ErrorLog, Location, SpecError
 from .schema import Distribution, Parameter, SymbolicProblem
 
-__all__ = ["check_uncertainty", "support"]
+__all__ = ["MAX_SAMPLES", "check_uncertainty", "support"]
+
+# A robust plan holds every scenario's whole trajectory at once: more than this is a typo, not a plan.
+MAX_SAMPLES = 100_000
+MAX_SEED = 2**32 - 1  # what every JAX PRNG implementation takes
 
 
 def _error(sym: SymbolicProblem, message: str, loc: Location) -> SpecError:
@@ -41,11 +46,13 @@ def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
     """Record every disagreement between the schema 3 fields and the rest of the spec (nothing for schema 1, 2)."""
     spec = sym.spec
     for p, value in zip(spec.parameters, sym.param_values):
-        if p.bounds is not None and value is not None:
+        bounds_ok = p.bounds is not None and log.attempt(_check_param_bounds, sym, p)
+        if bounds_ok and value is not None:
             log.attempt(_check_nominal_in_bounds, sym, p, value)
-        if p.uncertain is not None:
-            log.attempt(_check_domain, sym, p)
+        if p.uncertain is not None and log.attempt(_check_distribution, sym, p.name, p.uncertain):
             log.attempt(_check_structural, sym, p)
+            if p.bounds is None or bounds_ok:
+                log.attempt(_check_domain, sym, p)
             if value is not None:
                 log.attempt(_check_nominal, sym, p, value)
     uncertain = {p.name: p for p in spec.parameters if p.uncertain is not None}
@@ -59,8 +66,33 @@ def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
     if spec.robust is not None:
         _check_robust(sym, bool(uncertain), log)
     if spec.noise is not None:
-        for part in (spec.noise.process or ()) + (spec.noise.observation or ()):
-            log.attempt(_check_noise_state, sym, part)
+        for level in (spec.noise.process or ()) + (spec.noise.observation or ()):
+            log.attempt(_check_noise_state, sym, level)
+            if level.level < 0:
+                log.add(_error(sym, f"the {level.part} noise of `{level.state}` is {level.level:g}; a noise level is a "
+                               f"standard deviation, so it must be >= 0 (write `{level.state}: {-level.level:g}`?)",
+                               level.value_loc))
+
+
+def _check_param_bounds(sym: SymbolicProblem, p: Parameter) -> bool:
+    lo, hi = p.bounds
+    if lo == math.inf or hi == -math.inf or lo > hi:
+        raise _error(sym, f"bounds of parameter `{p.name}` are [{lo:g}, {hi:g}]: they must be `[lower, upper]` with "
+                     "lower <= upper; write `.inf` for no upper bound, e.g. `[0, .inf]` for a positive one",
+                     p.bounds_loc)
+    return True
+
+
+def _check_distribution(sym: SymbolicProblem, name: str, d: Distribution) -> bool:
+    """A distribution's own numbers: a uniform's lo < hi, a normal's std and a lognormal's sigma > 0."""
+    if d.kind == "uniform" and not d.args[0] < d.args[1]:
+        raise _error(sym, f"`uniform` of `{name}` is [{d.args[0]:g}, {d.args[1]:g}]: it needs lo < hi (a range with "
+                     "something in it); write `[lo, hi]`, or drop `uncertain` for a known value", d.loc)
+    if d.kind in ("normal", "lognormal") and not d.args[1] > 0:
+        what = "std" if d.kind == "normal" else "sigma"
+        raise _error(sym, f"`{d.kind}` of `{name}` has {what} {d.args[1]:g}; it must be positive, e.g. "
+                     f"`[{d.args[0]:g}, 0.1]` (drop `uncertain` for a known value)", d.arg_locs[1])
+    return True
 
 
 def _check_nominal_in_bounds(sym: SymbolicProblem, p: Parameter, value: float) -> None:
@@ -150,13 +182,21 @@ def _check_scenario_value(sym: SymbolicProblem, i: int, p: Parameter, value: flo
     if not lo <= value <= hi or (d.kind == "lognormal" and value <= 0):
         raise _error(sym, f"scenario {i + 1} gives `{p.name}` = {value:g}, which its `{_describe(d)}` cannot take; "
                      "use a value it can", loc)
-    if p.bounds is not None and not p.bounds[0] <= value <= p.bounds[1]:
-        raise _error(sym, f"scenario {i + 1} gives `{p.name}` = {value:g}, outside its bounds [{p.bounds[0]:g}, "
-                     f"{p.bounds[1]:g}]", loc)
+    # Inside the distribution's support is inside the parameter's bounds: _check_domain holds the one in the other.
 
 
 def _check_robust(sym: SymbolicProblem, any_uncertain: bool, log: ErrorLog) -> None:
     spec, robust = sym.spec, sym.spec.robust
+    if robust.alpha is not None and not 0 < robust.alpha < 1:
+        log.add(_error(sym, f"cvar's alpha must be strictly between 0 and 1 (the fraction of the best scenario costs "
+                       f"left out: 0 would be the mean, 1 the worst case), got {robust.alpha:g}; e.g. "
+                       "`{cvar: 0.9}`, or write `mean` or `worst`", robust.alpha_loc))
+    for key, value, lo, hi, why in (
+            ("samples", robust.samples, 1, MAX_SAMPLES, "the number of scenarios drawn for the robust plan"),
+            ("seed", robust.seed, 0, MAX_SEED, "the seed they are drawn with")):
+        loc = robust.samples_loc if key == "samples" else robust.seed_loc
+        if loc is not None and not lo <= value <= hi:
+            log.add(_error(sym, f"`{key}` ({why}) must be a whole number from {lo} to {hi:,}, got {value}", loc))
     if not any_uncertain:
         log.add(_error(sym, "`robust` plans for the uncertain parameters, but no parameter is uncertain; add "
                        "`uncertain:` to a parameter, or remove `robust`", robust.loc))

@@ -316,7 +316,8 @@ def _schema(r: _Reader, top: dict) -> int:
     schema = r.scalar(schema_node, ("schema",))
     if isinstance(schema, bool) or not isinstance(schema, int) or schema not in SUPPORTED_SCHEMAS:
         got = f"text `{_show(schema)}`" if isinstance(schema, str) else f"`{_show(str(schema))}`"
-        versions = " or ".join(f"`schema: {v}`" for v in SUPPORTED_SCHEMAS)
+        names = [f"`schema: {v}`" for v in SUPPORTED_SCHEMAS]
+        versions = ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0]
         raise r.error(f"unsupported schema {got}; this compiler reads {versions} (a number)",
                       r.loc(schema_node, ("schema",)))
     parse_schema2.require_schema2(r, schema, top)

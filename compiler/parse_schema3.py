@@ -2,9 +2,11 @@
 
 Called by :mod:`.parse` with its reader (so positions and messages are the same as for every other field). The numbers
 in these fields are YAML numbers, never expressions: the runtime samples from them as data, and nothing in them is
-evaluated. What a field means on its own (a standard deviation > 0, a range lo < hi, alpha in (0, 1), a noise level
->= 0) is checked here; what relates it to the rest of the spec (a scenario's names, a distribution inside its
-parameter's domain, noise on a declared state) is checked by :mod:`.checks_schema3`.
+evaluated. Only the structure and the types are checked here (a distribution's kind and count of numbers, numbers
+that are finite, whole numbers where counts are meant); the values (a standard deviation > 0, a range lo < hi, alpha in
+(0, 1), a noise level >= 0) and what relates them to the rest of the spec (a scenario's names, a distribution inside
+its parameter's domain, noise on a declared state) are checked by :mod:`.checks_schema3`, so all of them are reported
+together.
 
     parameters:
       k: {value: 2.0, bounds: [0, .inf], uncertain: {uniform: [1.5, 2.5]}}
@@ -38,8 +40,6 @@ ROBUST_OBJECTIVES = ("mean", "worst", "cvar")
 ROBUST_FIELDS = {"objective": False, "samples": False, "seed": False}  # `objective` gets a message of its own
 NOISE_FIELDS = {"process": False, "observation": False}
 DEFAULT_SAMPLES, DEFAULT_SEED = 16, 0
-# A robust plan holds every scenario's whole trajectory at once: more than this is a typo, not a plan.
-MAX_SAMPLES = 100_000
 _KINDS = ", ".join(f"`{{{k}: {shape}}}`" for k, (shape, _) in DISTRIBUTIONS.items())
 
 
@@ -118,26 +118,14 @@ def distribution(r, node: yaml.Node, param: str) -> Distribution:
     shape, count = DISTRIBUTIONS[kind]
     what = f"`{kind}` of `{r.show(param)}`"
     args, arg_locs = _numbers(r, args_node, path + (kind,), what, count, shape)
-    loc = r.loc(args_node, path + (kind,))
-    if kind == "uniform" and not args[0] < args[1]:
-        raise r.error(f"{what} is [{args[0]:g}, {args[1]:g}]: it needs lo < hi (a range with something in it); "
-                      "write `[lo, hi]`, or drop `uncertain` for a known value", loc)
-    if kind in ("normal", "lognormal") and not args[1] > 0:
-        name = "std" if kind == "normal" else "sigma"
-        raise r.error(f"{what} has {name} {args[1]:g}; it must be positive, e.g. `[{args[0]:g}, 0.1]` (drop "
-                      "`uncertain` for a known value)", arg_locs[1])
-    return Distribution(kind=kind, args=args, loc=loc, arg_locs=arg_locs)
+    return Distribution(kind=kind, args=args, loc=r.loc(args_node, path + (kind,)), arg_locs=arg_locs)
 
 
 def param_bounds(r, node: yaml.Node, param: str):
     """A parameter's physical domain ``bounds: [lo, hi]`` (numbers; `.inf` for no bound): ``(lo, hi), loc``."""
     path = ("parameters", param, "bounds")
     (lo, hi), _ = _numbers(r, node, path, f"`bounds` of `{r.show(param)}`", 2, "[lower, upper]", allow_inf=True)
-    loc = r.loc(node, path)
-    if lo == math.inf or hi == -math.inf or lo > hi:
-        raise r.error(f"bounds of parameter `{r.show(param)}` are [{lo:g}, {hi:g}]: they must be `[lower, upper]` "
-                      "with lower <= upper; write `.inf` for no upper bound, e.g. `[0, .inf]` for a positive one", loc)
-    return (lo, hi), loc
+    return (lo, hi), r.loc(node, path)
 
 
 def scenarios(r, node: yaml.Node) -> tuple[tuple[Scenario, ...], object]:
@@ -174,12 +162,11 @@ def robust(r, node: yaml.Node) -> Robust:
         raise r.error("`robust` needs `objective:` (`mean`, `worst` or `{cvar: alpha}`), e.g. "
                       "`robust: {objective: mean}`", loc)
     objective, alpha, alpha_loc = r.log.attempt(_objective, r, f["objective"][1]) or (None, None, None)
-    samples = r.log.attempt(_count, r, f["samples"][1], "samples", 1, MAX_SAMPLES) if "samples" in f else \
-        DEFAULT_SAMPLES
-    seed = r.log.attempt(_count, r, f["seed"][1], "seed", 0, 2**32 - 1) if "seed" in f else DEFAULT_SEED
+    samples = r.log.attempt(_whole, r, f["samples"][1], "samples") if "samples" in f else DEFAULT_SAMPLES
+    seed = r.log.attempt(_whole, r, f["seed"][1], "seed") if "seed" in f else DEFAULT_SEED
     if objective is None or samples is None or seed is None:
         raise Unresolved
-    where = {k: r.loc(f[k][0], path + (k,)) for k in ("samples", "seed") if k in f}
+    where = {k: r.loc(f[k][1], path + (k,)) for k in ("samples", "seed") if k in f}
     return Robust(loc=loc, objective=objective, alpha=alpha, alpha_loc=alpha_loc, samples=samples, seed=seed,
                   samples_loc=where.get("samples"), seed_loc=where.get("seed"))
 
@@ -191,12 +178,7 @@ def _objective(r, node: yaml.Node):
         items = r.mapping(node, path, {"cvar": True}, "`objective` (`{cvar: alpha}`)")
         alpha_node = items[0][2]
         apath = path + ("cvar",)
-        alpha = number(r, alpha_node, apath, "cvar's alpha")
-        if not 0 < alpha < 1:
-            raise r.error(f"cvar's alpha must be strictly between 0 and 1 (the fraction of the best scenario costs "
-                          f"left out: 0 is the mean, 1 the worst case), got {alpha:g}; e.g. `{{cvar: 0.9}}`, or "
-                          "write `mean` or `worst`", r.loc(alpha_node, apath))
-        return "cvar", alpha, r.loc(alpha_node, apath)
+        return "cvar", number(r, alpha_node, apath, "cvar's alpha"), r.loc(alpha_node, apath)
     value = r.scalar(node, path)
     if value == "cvar":
         raise r.error("`cvar` needs its alpha: write `objective: {cvar: 0.9}` (0 < alpha < 1)", r.loc(node, path))
@@ -206,12 +188,13 @@ def _objective(r, node: yaml.Node):
     return value, None, None
 
 
-def _count(r, node: yaml.Node, key: str, lo: int, hi: int) -> int:
+def _whole(r, node: yaml.Node, key: str) -> int:
+    """A whole number (its range is checked with the other values, in :mod:`.checks_schema3`)."""
     value = r.scalar(node, ("robust", key))
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+    if isinstance(value, bool) or not isinstance(value, int):
         why = {"samples": "the number of scenarios drawn for the robust plan", "seed": "the seed they are drawn with"}
-        raise r.error(f"`{key}` ({why[key]}) must be a whole number from {lo} to {hi:,}, got "
-                      f"`{r.show(str(value))}`", r.loc(node, ("robust", key)))
+        raise r.error(f"`{key}` ({why[key]}) must be a whole number, got `{r.show(str(value))}`",
+                      r.loc(node, ("robust", key)))
     return value
 
 
@@ -245,7 +228,4 @@ def _levels(r, part: str, node: yaml.Node) -> tuple[NoiseLevel, ...]:
 def _level(r, part: str, key: str, kn: yaml.Node, vn: yaml.Node) -> NoiseLevel:
     path = ("noise", part, key)
     level = number(r, vn, path, f"the {part} noise of `{r.show(key)}`")
-    if level < 0:
-        raise r.error(f"the {part} noise of `{r.show(key)}` is {level:g}; a noise level is a standard deviation, so "
-                      f"it must be >= 0 (write `{r.show(key)}: {-level:g}`?)", r.loc(vn, path))
-    return NoiseLevel(state=key, level=level, loc=r.loc(kn, path))
+    return NoiseLevel(state=key, level=level, loc=r.loc(kn, path), value_loc=r.loc(vn, path), part=part)

@@ -80,7 +80,7 @@ class Robust:
     alpha_loc: Location | None
     samples: int
     seed: int
-    # Where `samples` and `seed` were written; None where they took their defaults.
+    # Where the values of `samples` and `seed` were written; None where they took their defaults.
     samples_loc: Location | None = None
     seed_loc: Location | None = None
 
@@ -92,6 +92,8 @@ class NoiseLevel:
     state: str
     level: float
     loc: Location  # the state's key
+    value_loc: Location
+    part: str  # "process" | "observation"
 
 
 @dataclasses.dataclass(frozen=True)
