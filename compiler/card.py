@@ -23,6 +23,7 @@ from .build import BuildResult, _display, _read, _symbolic, spec_files, write_ou
 
 # The text helpers live in .card_text (md, code, num and symbol_tex are re-exported for existing importers).
 from .card_schema2 import fingerprint_parts, horizon_cell, horizon_sentence, path_lines, path_table
+from .card_schema3 import uncertainty_blocks
 from .card_text import _comment, _e, _g, _math, _short_floats, _table, _url, _value, code, md, num, symbol_tex
 from .errors import SpecError, flatten
 from .optimal_control import derive
@@ -198,9 +199,11 @@ def render_card(sym: SymbolicProblem, display: str, *, spec_link: str, results: 
     optimality.append("<details><summary>Costate equations and their final values</summary>\n\n"
                       + _math(*eq.costates, aligned=True) + "\n\n</details>")
 
+    uncertainty = uncertainty_blocks(sym)
     sections = [
         {"title": "Problem", "blocks": problem},
         {"title": "Variables and parameters", "blocks": tables},
+        *([{"title": "Uncertainty", "blocks": uncertainty}] if uncertainty else []),  # schema 3 only
         {"title": "Optimality conditions (Pontryagin, minimisation form)", "blocks": optimality},
         {"title": "Reference results", "blocks": _results_blocks(sym, results, plot_link)},
     ]

@@ -182,6 +182,10 @@ def _cmd_show(args) -> int:
         print(f"  T free in [{lo:g}, {hi:g}], guess {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
     else:
         print(f"  T = {sym.horizon:g}; sense: {s.sense} (below in minimisation form)")
+    from .card_schema3 import show_lines
+
+    for line in show_lines(sym):  # schema 3: the uncertainty; nothing for earlier schemas
+        print(_clean(line))
     width = max(len(k) for k, _ in c.data.summary)
     for k, v in c.data.summary:
         print(f"  {_clean(k).rjust(width)} = {_clean(v)}")
