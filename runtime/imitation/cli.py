@@ -1,4 +1,5 @@
-"""``myriad imitate``: behaviour cloning or DAgger from optimal demonstrations, scored in the env.
+"""``myriad imitate``: behaviour cloning, DAgger or the end-to-end learner from optimal demonstrations, scored in the
+env.
 
 Arguments are checked before any work (exit 2); the JSON record and the plots are written atomically; exit 1 when
 the training failed (a non-finite loss: the reason on stderr and in the record's ``status`` and ``message``).
@@ -22,11 +23,13 @@ def add_parser(sub) -> None:
     from ..configs import add_arguments
     from .run import ImitateConfig
 
-    s = sub.add_parser("imitate", help="imitation baselines: behaviour cloning or DAgger from optimal demonstrations",
+    s = sub.add_parser("imitate", help="imitation baselines: behaviour cloning, DAgger or end-to-end learning from "
+                                       "optimal demonstrations",
                        epilog="exit 0: trained and scored; 1: the training failed (reason on stderr and in the "
                               "record); 2: a usage error, before any work")
     s.add_argument("system", metavar="NAME|PATH")
-    # The flags are ImitateConfig's fields (--fit and --dagger take JSON; --set fit.epochs=... reaches a nested one).
+    # The flags are ImitateConfig's fields (--fit, --dagger and --e2e take JSON; --set fit.epochs=... or
+    # --set e2e.iterations=... reaches a nested one).
     add_arguments(s, ImitateConfig, metavars=_METAVARS)
     s.add_argument("--dataset", metavar="PATH", default=None,
                    help="demonstrations from a dataset `myriad dataset` wrote (its Minari folder or .npz) instead of "
@@ -48,10 +51,14 @@ def run(args) -> int:
         return usage("imitate", f"--dataset {args.dataset}: no such file or folder; write one with `myriad dataset`")
     from ..loader import load
     from ..rl.reference import reference_env
+    from .e2e import require_learnable
 
     system = load(args.system)
-    try:  # a control without finite bounds: no action space to squash into, before any work
-        reference_env(system).require_finite_controls("a policy's output cannot be squashed into them")
+    try:  # before any work: a model to learn (e2e); else finite controls, for a policy's output to squash into
+        if config.method == "e2e":
+            require_learnable(system, config.e2e)
+        else:
+            reference_env(system).require_finite_controls("a policy's output cannot be squashed into them")
     except ValueError as exc:
         return usage("imitate", str(exc))
     if args.dataset is not None:  # another spec's or env version's, or too few episodes: refused before any work
@@ -64,6 +71,13 @@ def run(args) -> int:
         if len(episodes) < config.demos:
             return usage("imitate", f"--dataset {args.dataset} has {len(episodes)} episodes, fewer than --demos "
                                     f"{config.demos}")
+        if config.method == "e2e":
+            from .e2e import check_starts
+
+            try:
+                check_starts(system, episodes.observations[: config.demos], f"--dataset {args.dataset}")
+            except ValueError as exc:
+                return usage("imitate", str(exc))
     from .run import run_imitation
 
     report = run_imitation(system, config, dataset=args.dataset, checkpoint_dir=args.checkpoint, resume=args.resume)
@@ -74,6 +88,9 @@ def run(args) -> int:
     print(f"  normalised score {scores['normalized_score']:.2f} (return {scores['episode_return']:.6g}); under "
           f"mismatch +-{config.mismatch:g}: {scores['mismatch']['normalized_score']:.2f}; under observation noise "
           f"{config.noise:g}: {scores['noise']['normalized_score']:.2f}")
+    if report.e2e is not None:  # the learnt parameters beside the true ones
+        print("  learnt " + ", ".join(f"{k} {v:.6g} (true {report.e2e.true.get(k, float('nan')):.6g})"
+                                      for k, v in report.e2e.learned.items()))
     if args.json:
         from ..atomic import atomic_write_text
 

@@ -1,4 +1,5 @@
-"""One imitation experiment: demonstrations, a behaviour-cloning fit (and DAgger after it), the score in the env.
+"""One imitation experiment: demonstrations, a behaviour-cloning fit (and DAgger after it) or the end-to-end learner,
+the score in the env.
 
     report = run_imitation("van_der_pol", ImitateConfig(method="dagger", demos=20, seed=0))
     report.record()["normalized_score"]
@@ -7,7 +8,9 @@ The demonstrations are the optimal policy's episodes from ``runtime/datasets`` (
 with ``policy="optimal"``: the certified plan from each episode's start, the starts perturbed by ``start_noise`` so
 that the demonstrations are more than one trajectory repeated), or a dataset that ``myriad dataset`` wrote. The last
 ``held_out`` fraction of them (at least one; with a single demonstration, every fifth step of it) is held out for
-early stopping. Everything is drawn from ``seed``: the same seed, the same record.
+early stopping. Everything is drawn from ``seed``: the same seed, the same record. The end-to-end method
+(``method="e2e"``, :mod:`.e2e`) learns the model's parameters from the same demonstrations through the planner
+(``runtime/e2e``'s ``run_e2e``, configured by ``e2e``) and scores the learnt model's open-loop plan.
 """
 
 from __future__ import annotations
@@ -21,18 +24,26 @@ import jax
 import numpy as np
 
 from ..configs import to_json
+from ..e2e import E2EConfig, E2EReport, Implicit
 from ..learn.loop import Stop
 from ..loader import load
 from ..rl.env import EnvOptions
 from ..rl.reference import reference_env
+from ..solvers.interior_point import InteriorPoint
 from ..system import System
 from .dagger import DaggerConfig, dagger
+from .e2e import PlanPolicy, learn_end_to_end, require_learnable
 from .expert import Expert
 from .fit import FitConfig, Pairs, fit
 from .policy import Policy
 from .rollout import score
 
-__all__ = ["ImitateConfig", "ImitationReport", "demonstrations", "run_imitation"]
+__all__ = ["E2E_DEFAULT", "ImitateConfig", "ImitationReport", "METHODS", "demonstrations", "run_imitation"]
+
+METHODS = ("bc", "dagger", "e2e")
+# The end-to-end method's default: implicit gradients at interior-point solves (converged plans: the expert is one),
+# 300 iterations, where Cancer Treatment's r and delta come within 1 % (README.md, measurements).
+E2E_DEFAULT = E2EConfig(adjoint=Implicit(), implicit_solver=InteriorPoint(), iterations=300)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,32 +51,40 @@ class ImitateConfig:
     """An imitation experiment (module docstring).
 
     Attributes:
-        method: ``bc`` (behaviour cloning) or ``dagger`` (behaviour cloning, then DAgger with the optimiser as expert).
+        method: ``bc`` (behaviour cloning), ``dagger`` (behaviour cloning, then DAgger with the optimiser as
+            expert) or ``e2e`` (the end-to-end learner: the model's parameters through the planner, then its plan).
         demos: the number of optimal demonstrations (episodes).
         seed: every draw's: the demonstrations' starts, the network's initialisation, DAgger's rollouts.
-        start_noise: the demonstrations' (and DAgger's rollouts') start perturbation: x0 + start_noise * s * U(-1, 1).
+        start_noise: the demonstrations' (and DAgger's rollouts') start perturbation: x0 + start_noise * s * U(-1, 1);
+            None: 0.1, and 0 for ``e2e`` (Algorithm 2 plans from the spec's start).
         held_out: the fraction of the demonstrations held out for early stopping.
         fit: the fit's settings (learning rate, epochs, patience, network; ``--set fit.epochs=...``).
         dagger: DAgger's schedule (iterations, rollouts, beta, beta_decay; ``--set dagger.iterations=...``).
         mismatch: the score under mismatch: the env's uncertain parameters off by +-this fraction.
         noise: the score under observation noise: noise * s * N(0, 1) added to the observed state.
         score_episodes: seeded episodes of each of the mismatch and noise scores.
+        e2e: the end-to-end learner's settings (``runtime/e2e``'s ``E2EConfig``; ``--set e2e.iterations=...``).
     """
 
-    method: Literal["bc", "dagger"] = "bc"
+    method: Literal["bc", "dagger", "e2e"] = "bc"
     demos: int = 20
     seed: int = 0
-    start_noise: float = 0.1
+    start_noise: float | None = None
     held_out: float = 0.2
     fit: FitConfig = FitConfig()
     dagger: DaggerConfig = DaggerConfig()
     mismatch: float = 0.1
     noise: float = 0.02
     score_episodes: int = 3
+    e2e: E2EConfig = E2E_DEFAULT
 
     def __post_init__(self):
-        if self.method not in ("bc", "dagger"):
-            raise ValueError(f"method must be bc or dagger, got {self.method!r}")
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.start_noise is None:  # resolved here, so the record holds the value used
+            object.__setattr__(self, "start_noise", 0.0 if self.method == "e2e" else 0.1)
+        if not isinstance(self.e2e, E2EConfig):
+            raise ValueError(f"e2e must be an E2EConfig, got {type(self.e2e).__name__}")
         for name in ("demos", "score_episodes"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -86,7 +105,7 @@ class ImitationReport:
 
     system: System
     config: ImitateConfig
-    policy: Policy
+    policy: Policy | PlanPolicy  # e2e: the learnt model's open-loop plan as a policy, ``net`` the plan (N, m)
     net: Any
     status: Stop
     message: str
@@ -95,6 +114,7 @@ class ImitationReport:
     history: list  # DAgger's (iteration, held-out loss, nominal env cost), iteration 0 the behaviour-cloning start
     seconds: dict
     counts: dict
+    e2e: E2EReport | None = None  # the end-to-end learner's report (method e2e)
 
     @property
     def failed(self) -> bool:
@@ -118,8 +138,10 @@ def _finite(value: Any) -> Any:
     return None if isinstance(value, float) and not np.isfinite(value) else value
 
 
-def demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None = None):
-    """The demonstrations' observations (E, N, d) and controls (E, N, m), in the env's units (module docstring)."""
+def demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None = None, *,
+                   final: bool = False):
+    """The demonstrations' observations (E, N, d) and controls (E, N, m), in the env's units (module docstring);
+    ``final``: the observations with the episodes' last node too, (E, N + 1, d)."""
     if dataset is not None:
         from ..datasets.storage import load_dataset
 
@@ -131,7 +153,7 @@ def demonstrations(system: System, config: ImitateConfig, dataset: str | os.Path
 
         episodes = collect(system, "optimal", episodes=config.demos, seed=config.seed,
                            options=EnvOptions(normalize_actions=False), perturb=Perturbation(start=config.start_noise))
-    obs, actions = episodes.observations[: config.demos, :-1], episodes.actions[: config.demos]
+    obs, actions = episodes.observations[: config.demos, : None if final else -1], episodes.actions[: config.demos]
     if episodes.info["options"].get("normalize_actions", True):  # actions in [-1, 1]: the env's map onto the controls
         lo, hi = reference_env(system).control_bounds
         actions = lo + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (hi - lo)
@@ -156,18 +178,38 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
                   resume: bool = False, progress: bool | None = None) -> ImitationReport:
     """Imitate the optimal policy of ``target`` as ``config`` says and score the result (module docstring).
 
-    Checkpoints go to ``checkpoint_dir/bc`` and ``checkpoint_dir/dagger``; ``resume`` continues from them."""
+    Checkpoints go to ``checkpoint_dir/bc``, ``checkpoint_dir/dagger`` and ``checkpoint_dir/e2e``; ``resume``
+    continues from them. A spec without learnable parameters is refused for ``e2e`` (ValueError) before any work."""
     if not isinstance(config, ImitateConfig):
         raise TypeError(f"run_imitation: config must be an ImitateConfig, got {type(config).__name__}")
     system = target if isinstance(target, System) else load(target)
+    if config.method == "e2e":
+        require_learnable(system, config.e2e)
     env = reference_env(system)
-    policy = Policy.of(env, config.fit.width, config.fit.depth)
-    seconds, counts = {}, {}
-    t = time.perf_counter()
-    obs, controls = demonstrations(system, config, dataset)
-    seconds["demonstrations"] = time.perf_counter() - t
-    train_pairs, held_out = _split(policy, obs, controls, config.held_out)
     sub = (lambda name: None) if checkpoint_dir is None else (lambda name: os.path.join(checkpoint_dir, name))
+    seconds = {}
+    t = time.perf_counter()
+    obs, controls = demonstrations(system, config, dataset, final=config.method == "e2e")
+    seconds["demonstrations"] = time.perf_counter() - t
+    learn = _end_to_end if config.method == "e2e" else _cloned
+    t = time.perf_counter()
+    out = learn(system, env, config, obs, controls, sub, resume=resume, progress=progress, dataset=dataset)
+    seconds.update(out.pop("seconds", {config.method: time.perf_counter() - t}))
+    t = time.perf_counter()
+    scores = score(env, out["policy"], out["net"], mismatch=config.mismatch, noise=config.noise,
+                   episodes=config.score_episodes)
+    seconds["score"] = time.perf_counter() - t
+    status, message = out.pop("status"), out.pop("message")
+    if status.success and not np.isfinite(scores["episode_return"]):  # finite losses, yet the policy overflows
+        status, message = Stop.NON_FINITE, f"the policy's episode return is {scores['episode_return']}"
+    return ImitationReport(system, config, status=status, message=message, scores=scores, seconds=seconds, **out)
+
+
+def _cloned(system: System, env, config: ImitateConfig, obs, controls, sub, *, resume, progress, dataset) -> dict:
+    """Behaviour cloning, and DAgger after it (``method="dagger"``): the report's fields."""
+    policy = Policy.of(env, config.fit.width, config.fit.depth)
+    train_pairs, held_out = _split(policy, obs, controls, config.held_out)
+    seconds, counts = {}, {}
     t = time.perf_counter()
     bc = fit(policy, policy.init(jax.random.PRNGKey(config.seed)), train_pairs, held_out, config.fit,
              checkpoint_dir=sub("bc"), resume=resume, progress=progress, desc=f"bc {system.name}")
@@ -181,9 +223,19 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
         net, status, message = run.net, run.stop, run.message
         history = run.history
         counts = {"expert_labels": run.labels, "expert_failures": run.failures}
-    t = time.perf_counter()
-    scores = score(env, policy, net, mismatch=config.mismatch, noise=config.noise, episodes=config.score_episodes)
-    seconds["score"] = time.perf_counter() - t
-    if status.success and not np.isfinite(scores["episode_return"]):  # finite losses, yet the policy overflows
-        status, message = Stop.NON_FINITE, f"the policy's episode return is {scores['episode_return']}"
-    return ImitationReport(system, config, policy, net, status, message, scores, bc.history, history, seconds, counts)
+    return {"policy": policy, "net": net, "status": status, "message": message, "fit_history": bc.history,
+            "history": history, "seconds": seconds, "counts": counts}
+
+
+def _end_to_end(system: System, env, config: ImitateConfig, obs, controls, sub, *, resume, progress,
+                dataset) -> dict:
+    """The end-to-end learner on the demonstrations (:mod:`.e2e`): the report's fields; the record's ``e2e`` holds
+    the learnt parameters beside the true ones, the iterations and the final imitation loss."""
+    source = "the demonstrations" if dataset is None else f"--dataset {dataset}"
+    learnt = learn_end_to_end(system, env, obs, controls, config.e2e, checkpoint_dir=sub("e2e"), resume=resume,
+                              progress=progress, source=source)
+    rec = learnt.report.record()
+    keys = ("learned", "true", "iterations", "imitation_loss", "relative_gap", "status", "counts")
+    status = learnt.report.status
+    return {"policy": learnt.policy, "net": learnt.plan, "status": status, "message": learnt.report.message,
+            "fit_history": [], "history": [], "counts": {"e2e": {k: rec[k] for k in keys}}, "e2e": learnt.report}
