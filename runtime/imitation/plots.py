@@ -18,12 +18,17 @@ __all__ = ["plot_report"]
 
 
 def plot_report(report, folder: Path) -> list[str]:
-    """``loss.png`` (the behaviour-cloning fit) and ``episode.png`` (states and controls of the policy's nominal
-    episode, solid, and of the optimiser's controls played open loop, dashed, where the reference scores have them)."""
+    """``loss.png`` (the behaviour-cloning fit, or the end-to-end learner's iterations) and ``episode.png`` (states
+    and controls of the policy's nominal episode, solid, and of the optimiser's controls played open loop, dashed,
+    where the reference scores have them)."""
     folder.mkdir(parents=True, exist_ok=True)
     name = report.system.name
-    paths = [plot_loss(report.fit_history, folder / "loss.png", f"{name}: behaviour cloning",
-                       labels=("training", "held-out"), ylabel="action loss (mean squared error)")]
+    if report.e2e is not None:  # the end-to-end learner's imitation loss and its planner's KKT residual
+        paths = [plot_loss(report.e2e.history, folder / "loss.png", f"{name}: end-to-end learning", xlabel="iteration",
+                           labels=("imitation loss", "planner KKT residual"), ylabel=None, floor=1e-300)]
+    else:
+        paths = [plot_loss(report.fit_history, folder / "loss.png", f"{name}: behaviour cloning",
+                           labels=("training", "held-out"), ylabel="action loss (mean squared error)")]
     env = reference_env(report.system)
     data = jax.tree.map(jnp.asarray, env.default_params())
     ep = rollout(env, report.policy, report.net, data, jax.random.PRNGKey(0), jnp.asarray(0.0))
