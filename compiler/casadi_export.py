@@ -11,6 +11,20 @@ A schema 2 spec also carries its free final time (``free_horizon``, ``horizon_bo
 guess); :mod:`.casadi_opti` poses the whole problem with ``casadi.Opti`` (path constraints at every node, T a
 variable).
 
+A schema 3 spec carries its uncertainty as data, with the names and meanings of the generated system's attributes
+(specs/README.md): ``uncertain_params``, ``uncertain_kinds``, ``uncertain_args``, ``scenarios`` (rows of values of the
+uncertain parameters), ``robust_objective``/``robust_alpha``/``robust_samples``/``robust_seed``, ``process_noise`` and
+``observation_noise``. ``cs.scenario_params()`` turns the scenarios into ``p`` vectors, so the scenario problem is one
+loop away (one control trajectory, each scenario its own states)::
+
+    costs = []
+    for p in cs.scenario_params():            # the explicit scenarios; or scenario_params(rows) for drawn ones
+        X = opti.variable(cs.n_states, N + 1)  # ... its dynamics, bounds and cost J_s with cs.f, cs.L, cs.phi at p
+        costs.append(J_s)
+    opti.minimize(sum(costs) / len(costs))    # robust_objective "mean"
+
+:func:`.casadi_opti.scenario_trapezoidal` is that problem written out (mean, worst case, CVaR).
+
 This is an independent peer of the generated JAX code (bench/casadi_peer.py solves the same discretised problems
 with CasADi + IPOPT; tests/compiler/test_casadi_export.py checks that both agree). It starts from the compiler's
 checked :class:`~myriad.compiler.schema.SymbolicProblem` and :func:`~myriad.compiler.optimal_control.derive` (so a
@@ -36,6 +50,7 @@ import sympy
 
 from .errors import CodegenError
 from .expressions import wrap_floor, wrap_mod
+from .lower import schema3_attributes
 from .optimal_control import derive
 from .schema import SymbolicProblem
 
@@ -88,6 +103,17 @@ class CasadiSystem:
     path_lower: tuple[float, ...] = ()
     path_upper: tuple[float, ...] = ()
     horizon_bounds: tuple[float, float] | None = None  # a free final time's bounds, else None
+    # Schema 3 (empty or None otherwise), as the generated system's attributes of the same names.
+    uncertain_params: tuple[str, ...] = ()
+    uncertain_kinds: tuple[str, ...] = ()
+    uncertain_args: tuple[tuple[float, ...], ...] = ()
+    scenarios: tuple[tuple[float, ...], ...] = ()
+    robust_objective: str | None = None
+    robust_alpha: float | None = None
+    robust_samples: int = 16
+    robust_seed: int = 0
+    process_noise: tuple[float, ...] = ()
+    observation_noise: tuple[float, ...] = ()
 
     @property
     def free_horizon(self) -> bool:
@@ -122,6 +148,19 @@ class CasadiSystem:
             raise KeyError(f"{self.name}: unknown parameters {sorted(unknown)}; expected some of "
                            f"{list(self.param_names)}")
         return [float(params.get(k, v)) for k, v in zip(self.param_names, self.param_values)]
+
+    def scenario_params(self, rows=None) -> list[list[float]]:
+        """One ``p`` vector per scenario: ``rows`` (each the values of ``uncertain_params`` in order; default the
+        explicit ``scenarios``) with every other parameter at the spec's value."""
+        rows = self.scenarios if rows is None else rows
+        out = []
+        for row in rows:
+            row = [float(v) for v in row]
+            if len(row) != len(self.uncertain_params):
+                raise ValueError(f"{self.name}: a scenario row holds one value per uncertain parameter "
+                                 f"{list(self.uncertain_params)}, got {len(row)}")
+            out.append(self.params_vector(dict(zip(self.uncertain_params, row))))
+        return out
 
 
 def _casadi():
@@ -183,7 +222,13 @@ def to_casadi(sym: SymbolicProblem) -> CasadiSystem:
         path_lower=tuple(float(v) for v in sym.path_lower),
         path_upper=tuple(float(v) for v in sym.path_upper),
         horizon_bounds=None if sym.horizon_bounds is None else tuple(float(v) for v in sym.horizon_bounds),
+        **_uncertainty(sym),
     )
+
+
+def _uncertainty(sym: SymbolicProblem) -> dict:
+    """The schema 3 fields as keyword arguments: the very values the generated module's attributes get."""
+    return dict(schema3_attributes(sym))
 
 
 def export_file(path: str | os.PathLike) -> CasadiSystem:

@@ -45,11 +45,13 @@ def _describe(d: Distribution) -> str:
 def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
     """Record every disagreement between the schema 3 fields and the rest of the spec (nothing for schema 1, 2)."""
     spec = sym.spec
+    valid = set()  # parameters whose distribution passed its own check: only these are compared with other values
     for p, value in zip(spec.parameters, sym.param_values):
         bounds_ok = p.bounds is not None and log.attempt(_check_param_bounds, sym, p)
         if bounds_ok and value is not None:
             log.attempt(_check_nominal_in_bounds, sym, p, value)
         if p.uncertain is not None and log.attempt(_check_distribution, sym, p.name, p.uncertain):
+            valid.add(p.name)
             log.attempt(_check_structural, sym, p)
             if p.bounds is None or bounds_ok:
                 log.attempt(_check_domain, sym, p)
@@ -62,7 +64,7 @@ def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
                        spec.scenarios_loc))
     elif spec.scenarios_loc is not None:
         for i, scenario in enumerate(spec.scenarios):
-            _check_scenario(sym, i, scenario, uncertain, log)
+            _check_scenario(sym, i, scenario, uncertain, valid, log)
     if spec.robust is not None:
         _check_robust(sym, bool(uncertain), log)
     if spec.noise is not None:
@@ -146,7 +148,8 @@ def _check_nominal(sym: SymbolicProblem, p: Parameter, value: float) -> None:
                      "values; give a positive value or another distribution", p.value.loc)
 
 
-def _check_scenario(sym: SymbolicProblem, i: int, scenario, uncertain: dict[str, Parameter], log: ErrorLog) -> None:
+def _check_scenario(sym: SymbolicProblem, i: int, scenario, uncertain: dict[str, Parameter], valid: set[str],
+                    log: ErrorLog) -> None:
     """One scenario: only uncertain parameters, each of them, with a value its distribution and bounds allow."""
     declared = {p.name for p in sym.spec.parameters}
     named = set()
@@ -159,7 +162,7 @@ def _check_scenario(sym: SymbolicProblem, i: int, scenario, uncertain: dict[str,
         elif name not in uncertain:
             log.add(_error(sym, f"scenario {i + 1} gives `{name}`, which is not uncertain (a scenario holds values of "
                            f"the uncertain parameters only); add `uncertain:` to `{name}` or remove it here", loc))
-        else:
+        elif name in valid:
             log.attempt(_check_scenario_value, sym, i, uncertain[name], value, loc)
     missing = [n for n in uncertain if n not in named]
     if missing:

@@ -19,7 +19,7 @@ from .printer import StrictJaxPrinter
 from .schema import CodegenData, CodegenFunction, SymbolicProblem
 
 # derive and Derived live in .optimal_control; re-exported for existing importers.
-__all__ = ["Derived", "class_name", "derive", "lower"]
+__all__ = ["Derived", "class_name", "derive", "lower", "schema3_attributes"]
 
 
 def class_name(system_name: str) -> str:
@@ -128,15 +128,15 @@ def _schema2_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
     )
 
 
-def _schema3_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
-    """The schema 3 attributes (the interface of issue 30, in runtime/system.py), written only into schema 3 modules:
-    an earlier schema's module keeps its bytes and inherits the empty defaults."""
+def schema3_attributes(sym: SymbolicProblem) -> tuple[tuple[str, object], ...]:
+    """The schema 3 attributes (the interface of issue 30, declared in runtime/system.py) as ``(name, value)``, for
+    a schema 3 problem; none for an earlier schema's."""
     spec = sym.spec
     if spec.schema < 3:
         return ()
     uncertain = [p for p in spec.parameters if p.uncertain is not None]
     order = [p.name for p in uncertain]
-    rows = tuple(tuple(dict((n, v) for n, v, _ in s.values)[name] for name in order) for s in spec.scenarios)
+    rows = tuple(tuple(float(dict((n, v) for n, v, _ in s.values)[name]) for name in order) for s in spec.scenarios)
     robust, noise = spec.robust, spec.noise
 
     def per_state(levels):
@@ -146,17 +146,23 @@ def _schema3_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
         return tuple(float(given.get(s.name, 0.0)) for s in spec.states)
 
     return (
-        ("uncertain_params", _lit(tuple(order))),
-        ("uncertain_kinds", _lit(tuple(p.uncertain.kind for p in uncertain))),
-        ("uncertain_args", _lit(tuple(tuple(float(a) for a in p.uncertain.args) for p in uncertain))),
-        ("scenarios", _lit(tuple(tuple(float(v) for v in row) for row in rows))),
-        ("robust_objective", _lit(robust.objective if robust else None)),
-        ("robust_alpha", _lit(robust.alpha if robust else None)),
-        ("robust_samples", _lit(robust.samples if robust else DEFAULT_SAMPLES)),
-        ("robust_seed", _lit(robust.seed if robust else DEFAULT_SEED)),
-        ("process_noise", _lit(per_state(noise.process if noise else None))),
-        ("observation_noise", _lit(per_state(noise.observation if noise else None))),
+        ("uncertain_params", tuple(order)),
+        ("uncertain_kinds", tuple(p.uncertain.kind for p in uncertain)),
+        ("uncertain_args", tuple(tuple(float(a) for a in p.uncertain.args) for p in uncertain)),
+        ("scenarios", rows),
+        ("robust_objective", robust.objective if robust else None),
+        ("robust_alpha", robust.alpha if robust else None),
+        ("robust_samples", robust.samples if robust else DEFAULT_SAMPLES),
+        ("robust_seed", robust.seed if robust else DEFAULT_SEED),
+        ("process_noise", per_state(noise.process if noise else None)),
+        ("observation_noise", per_state(noise.observation if noise else None)),
     )
+
+
+def _schema3_metadata(sym: SymbolicProblem) -> tuple[tuple[str, str], ...]:
+    """The schema 3 attributes, written only into schema 3 modules: an earlier schema's module keeps its bytes and
+    inherits the empty defaults."""
+    return tuple((name, _lit(value)) for name, value in schema3_attributes(sym))
 
 
 def _path_functions(sym: SymbolicProblem, d) -> list[CodegenFunction]:

@@ -47,6 +47,14 @@ VALID2 = VALID.replace("schema: 1", "schema: 2").replace("  x: EXPR", "  x: -d +
     "  cap: {expression: PATH, bounds: [-.inf, 2], description: a cap}\n"
     "  band: {expression: x*u, bounds: [-1, 1]}\n")
 PATH_LINE = VALID2.splitlines().index("  cap: {expression: PATH, bounds: [-.inf, 2], description: a cap}") + 1
+# Schema 3: uncertainty, with a slot for each kind of number it holds (a distribution, a scenario, alpha, samples,
+# a noise level); DEFAULTS fill the slots a test leaves alone.
+VALID3 = VALID.replace("schema: 1", "schema: 3").replace("  x: EXPR", "  x: -d + u").replace(
+    "guess: 0.4, description", "guess: 0.4, bounds: [0, .inf], uncertain: {DIST: [0.4, HI]}, description") + (
+    "scenarios: [{k: 0.45}, {k: SCENARIO}]\n"
+    "robust: {objective: OBJECTIVE}\n"
+    "noise: {process: {x: SIGMA}, observation: {x: 0.01}}\n")
+DEFAULTS = {"DIST": "uniform", "HI": "0.6", "SCENARIO": "0.55", "OBJECTIVE": "{cvar: 0.9}", "SIGMA": "0.1"}
 ONE_LINE = re.compile(r"fuzz\.yaml:(\d+):(\d+): error: \S.*\Z", re.S)
 
 
@@ -115,6 +123,39 @@ def test_mutated_schema2_spec_raises_only_spec_errors(data):
     end = data.draw(st.integers(start, min(len(base), start + 12)))
     fragment = data.draw(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=6)))
     _compile(base[:start] + fragment + base[end:])
+
+
+@pytest.mark.slow
+@fuzz(200)
+@given(st.data())
+def test_mutated_schema3_spec_raises_only_spec_errors(data):
+    """The same for the schema 3 fields: uncertain parameters, scenarios, robust and noise."""
+    base = VALID3
+    for slot, value in DEFAULTS.items():
+        base = base.replace(slot, value)
+    assert _compile(base) is None
+    start = data.draw(st.integers(0, len(base)))
+    end = data.draw(st.integers(start, min(len(base), start + 12)))
+    fragment = data.draw(st.one_of(st.sampled_from(YAMLISH + SCHEMA3_VALUES), st.text(max_size=6)))
+    _compile(base[:start] + fragment + base[end:])
+
+
+SCHEMA3_VALUES = ["0", "-0.1", "1", "0.5", "2", "1e308", "1e999", "-.inf", ".inf", ".nan", "true", "null", "~", "''",
+                  "[]", "[0.5]", "[0.1, 0.2, 0.3]", "{}", "{cvar: 0.5}", "{cvar: 1}", "{cvar: .nan}", "mean", "worst",
+                  "cvar", "uniform", "normal", "lognormal", "choice", "gaussian", "1" * 400, "0x10", "2*k",
+                  "__import__('os')", "'0.5'", "!!python/object/apply:os.system ['true']", "*a", "&a 1"]
+
+
+@fuzz(200)
+@given(st.dictionaries(st.sampled_from(sorted(DEFAULTS)), st.one_of(st.sampled_from(SCHEMA3_VALUES),
+                                                                   st.text(max_size=6)), min_size=1))
+def test_schema3_values_compile_or_raise_spec_error(values):
+    """Whatever goes into the schema 3 slots, the spec compiles (and then its module holds numbers) or each error is
+    a well-formed SpecError; nothing in these fields is evaluated."""
+    text = VALID3
+    for slot, default in DEFAULTS.items():
+        text = text.replace(slot, values.get(slot, default))
+    _compile(text)
 
 
 # -- (b) grammar-aware expressions ---------------------------------------------------------------------------------
