@@ -237,7 +237,7 @@ def jobs(args) -> list[tuple]:
 def pending(results: Results, job: tuple, methods: list[str], args) -> list[str]:
     system, kind, demos, seed = job
     if kind == "baselines":
-        have = results.baseline(system)
+        have = results.data["baselines"].get(system, {})  # not baseline(): a look must not add an empty entry
         return [c for c in ("optimum", "mpc", "ppo") if c not in have or (c == "ppo" and args.retry_ppo)]
     return [m for m in methods if not results.done(system, m, demos, seed)]
 
