@@ -102,7 +102,7 @@ def test_a_killed_table_keeps_its_rows_and_a_rerun_runs_the_rest(tmp_path):
     assert cell["ci"][0] <= 25.0 <= cell["ci"][1] and cell["ci"][1] <= 90.0
     assert agg["overall"]["mpc"]["iqm"] == 99.5
     text = te.markdown(results, ["simple_case"], ["bc", "dagger"], [1, 10], {"simple_case": "Simple Case"})
-    assert "| | bc | 25.00 [" in text and "| Simple Case | " in text and "1: yes, 10: yes" in text
+    assert "| | bc | 25.000 [" in text and "| Simple Case | " in text and "1: yes, 10: yes" in text
 
 
 @pytest.mark.slow  # a real table: demonstrations, a fit, DAgger, MPC (about a minute of compiling)
