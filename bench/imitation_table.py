@@ -430,6 +430,7 @@ def parse(argv=None):
     ap.add_argument("--rl-steps", type=int, default=3_000_000, help="PPO's env steps per seed (with rejax)")
     ap.add_argument("--retry-ppo", action="store_true", help="run PPO again where the file says not installed")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
+    ap.add_argument("--no-run", action="store_true", help="only print (and write) the tables of what --json holds")
     return ap.parse_args(argv)
 
 
@@ -486,11 +487,12 @@ def main(argv=None) -> None:
     if skipped:
         print(f"imitation_table: {', '.join(skipped)}: not available (ImitateConfig does not take the method yet)",
               file=sys.stderr)
-    start = time.perf_counter()
-    results.data["machine"].setdefault("runs", []).append({"start": machine(), "argv": sys.argv[1:]})
-    run_table(args, base, results, methods, progress=args.progress)
-    results.data["machine"]["runs"][-1].update(end=machine(), seconds=time.perf_counter() - start)
-    results.save()
+    if not args.no_run:
+        start = time.perf_counter()
+        results.data["machine"].setdefault("runs", []).append({"start": machine(), "argv": sys.argv[1:]})
+        run_table(args, base, results, methods, progress=args.progress)
+        results.data["machine"]["runs"][-1].update(end=machine(), seconds=time.perf_counter() - start)
+        results.save()
     text = markdown(results, args.systems, methods, args.demos, labels)
     if skipped:
         text += f"\n{', '.join(skipped)}: not available (run_imitation has no such method yet).\n"
