@@ -241,12 +241,16 @@ def _next_counts(sol: Solution, mesh_errors, tol, order, max_split, parent_error
 
 
 def _stalled(sol: Solution, previous_gap: float, halved: bool) -> bool:
-    """The re-simulation's gap did not fall from the previous grid, where it must have: every interval was halved,
-    or the answers differ by more than the states' and the cost's own size (a small gap may wander between grids
-    before the asymptotic rate holds: the hyper-sensitive problem's went from 4.6e-6 to 5.8e-6 on a finer grid)."""
-    if sol.agreement is not False or not math.isfinite(previous_gap) or sol.agreement_gap < previous_gap:
+    """The re-simulation's gap did not fall from the previous grid, where it must have: every interval was halved
+    (it did not fall at all), or the answers differ by more than the states' and the cost's own size (it did not
+    halve: Alp rider's, 8.1e23 on 1469 intervals, fell by under 3 % a level for three more levels, 290 s, before it
+    rose). A small gap may wander between grids before the asymptotic rate holds (the hyper-sensitive
+    problem's went from 4.6e-6 to 5.8e-6 on a finer grid): below 1 only a halved grid judges it."""
+    if sol.agreement is not False or not math.isfinite(previous_gap):
         return False
-    return halved or not sol.agreement_gap <= 1.0
+    if halved:
+        return not sol.agreement_gap < previous_gap
+    return not sol.agreement_gap <= 1.0 and not sol.agreement_gap < 0.5 * previous_gap
 
 
 def _shortfall(sol: Solution, change: float) -> str:
