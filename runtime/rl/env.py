@@ -6,6 +6,12 @@ automatic reset) is in README.md in this folder.
     params = env.default_params()                 # ProblemData(params, x0): data, so a batch is one vmap
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+
+A spec that declares uncertainty (schema 3) makes a randomised, stochastic env: ``reset`` draws the uncertain
+parameters from their distributions with its key (data, not a recompile), the dynamics carry the declared process
+noise (a stochastic scheme on the env's grid) and the observations the declared observation noise; the options
+``randomize``, ``widen``, ``process_noise_scale`` and ``observation_noise_scale`` turn each off or scale it. Without
+any of it the env is the deterministic one, step for step and bit for bit.
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ from ..loader import load
 from ..system import System
 from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows
 from ..transcriptions.nominal_scales import state_scale
+from ..uncertainty.distributions import draw, uncertain_spec, with_values
+from ..uncertainty.sde import SDEScheme, for_integrator, increments
 
 __all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
 
@@ -50,6 +58,13 @@ class EnvOptions:
             checker expect); False: actions are the controls, in their units.
         action_bound: B > 0, the bound used on every unbounded side of a control ([-B, B] for a free control);
             required where a control is unbounded (default: :data:`DEFAULT_ACTION_BOUNDS`, Simple Case's 2).
+        randomize: draw the spec's uncertain parameters from their distributions at every reset (domain
+            randomisation; README.md: uncertainty); False: the parameters given in the data (the spec's values by
+            default). Nothing to do for a spec without uncertain parameters.
+        widen: the factor on every uncertain parameter's spread about its distribution's centre (1: as declared,
+            0: the centre; runtime/uncertainty/README.md).
+        process_noise_scale: the factor on the spec's process noise sigma (0: deterministic dynamics).
+        observation_noise_scale: the factor on the spec's observation noise std (0: exact observations).
     """
 
     steps: int = 100
@@ -60,6 +75,10 @@ class EnvOptions:
     penalty: float = 100.0
     normalize_actions: bool = True
     action_bound: float | None = None
+    randomize: bool = True
+    widen: float = 1.0
+    process_noise_scale: float = 1.0
+    observation_noise_scale: float = 1.0
 
     def __post_init__(self):
         if isinstance(self.integrator, str):  # a registry name: options of gymnasium.make stay plain data
@@ -77,13 +96,20 @@ class EnvOptions:
             raise ValueError("EnvOptions: start_noise and penalty must be non-negative")
         if self.action_bound is not None and not (0 < self.action_bound < np.inf):
             raise ValueError(f"EnvOptions: action_bound must be positive and finite, got {self.action_bound}")
+        for name in ("widen", "process_noise_scale", "observation_noise_scale"):
+            if not 0 <= getattr(self, name) < np.inf:
+                raise ValueError(f"EnvOptions: {name} must be finite and non-negative, got {getattr(self, name)}")
 
 
 class EnvState(NamedTuple):
-    """The environment's state (a pytree): the system's state and the index k of the current grid node."""
+    """The environment's state (a pytree): the system's state and the index k of the current grid node; in a
+    randomised env also the episode's draw of the uncertain parameters (``theta``, in ``uncertain_params``' order),
+    in a noisy one the key of the episode's noise (split at every step). Both are None (no leaves) otherwise."""
 
     x: Any
     k: Any
+    theta: Any = None
+    key: Any = None
 
 
 class Episode(NamedTuple):
@@ -116,6 +142,48 @@ class Env:
         if self.options.normalize_actions:
             self.require_finite_controls("actions cannot be normalised to [-1, 1]", ", or normalize_actions=False "
                                          "for actions in the control's own units (unclipped where unbounded)")
+        uncertain_spec(self.system)  # a malformed declaration fails here, not inside a trace
+        for name in ("process_noise", "observation_noise"):
+            levels = getattr(self.system, name, ())
+            if len(levels) not in (0, self.system.n_states) or not all(0 <= v < np.inf for v in levels):
+                raise ValueError(f"{self.system.name}: {name} needs one finite non-negative level per state "
+                                 f"({self.system.n_states}), got {tuple(levels)}")
+        if self.process_sigma is not None:
+            try:
+                for_integrator(self.options.integrator)
+            except ValueError as e:
+                raise ValueError(f"{self.system.name}: {e}, or process_noise_scale=0") from None
+
+    # ---- uncertainty (schema 3): what of it this env uses, static ----------------------------------------------
+    @property
+    def randomized(self) -> bool:
+        """True when ``reset`` draws the uncertain parameters (the spec has some, and ``randomize``)."""
+        return self.options.randomize and bool(uncertain_spec(self.system)[0])
+
+    def _levels(self, name: str, scale: float) -> np.ndarray | None:
+        levels = scale * np.asarray(getattr(self.system, name, ()), np.float64)
+        return levels if levels.size and np.any(levels > 0) else None
+
+    @property
+    def process_sigma(self) -> np.ndarray | None:
+        """The diffusion sigma (n_states,) of dx = f dt + sigma dW (the spec's times ``process_noise_scale``), or None
+        for deterministic dynamics."""
+        return self._levels("process_noise", self.options.process_noise_scale)
+
+    @property
+    def observation_std(self) -> np.ndarray | None:
+        """The observation noise's standard deviation per state, or None for exact observations."""
+        return self._levels("observation_noise", self.options.observation_noise_scale)
+
+    @property
+    def sde_scheme(self) -> SDEScheme | None:
+        """The stochastic scheme of the process noise (the one whose noiseless limit is ``integrator``), or None."""
+        return None if self.process_sigma is None else for_integrator(self.options.integrator)
+
+    @property
+    def stochastic(self) -> bool:
+        """True when an episode depends on its reset key beyond ``start_noise``: drawn parameters or noise."""
+        return self.randomized or self.process_sigma is not None or self.observation_std is not None
 
     def require_finite_controls(self, why: str, alternative: str = "") -> None:
         """Raise ``ValueError`` naming the controls without finite bounds (after ``action_bound``), if any."""
@@ -153,9 +221,16 @@ class Env:
 
     @property
     def observation_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The spec's state bounds, then [0, T] for the time to go (infinite where the spec gives no bound)."""
+        """The spec's state bounds, then [0, T] for the time to go (infinite where the spec gives no bound, and for
+        a state with process or observation noise: a Gaussian increment or reading has no bound)."""
         a = self.system.arrays()
-        return np.append(a["x_lower"], 0.0), np.append(a["x_upper"], float(self.system.horizon))
+        lo, hi = a["x_lower"], a["x_upper"]
+        noisy = np.zeros(self.system.n_states, bool)
+        for levels in (self.process_sigma, self.observation_std):
+            if levels is not None:
+                noisy |= levels > 0
+        lo, hi = np.where(noisy, -np.inf, lo), np.where(noisy, np.inf, hi)
+        return np.append(lo, 0.0), np.append(hi, float(self.system.horizon))
 
     def default_params(self, params: dict | None = None, x0: Any = None) -> ProblemData:
         """The environment's data: the system's parameters (``params`` overriding the spec's) and the start x0."""
@@ -180,40 +255,43 @@ class Env:
         to_go = float(self.system.horizon) * ((n_steps - state.k).astype(x.dtype) / n_steps)
         return jnp.concatenate([x, jnp.reshape(to_go, (1,))])
 
+    def _observe(self, state: EnvState, key: Any) -> Any:
+        """The observation, with the observation noise std * N(0, 1) on the states when there is any."""
+        obs = self.observation(state)
+        std = self.observation_std
+        if std is None:
+            return obs
+        std = jnp.append(jnp.asarray(std, obs.dtype), jnp.zeros((1,), obs.dtype))  # the time to go is exact
+        return obs + std * jax.random.normal(key, obs.shape, obs.dtype)
+
     def reset(self, key: Any, params: ProblemData) -> tuple[Any, EnvState]:
-        """A new episode at t = 0: ``(observation, state)``. ``key`` is used only with ``start_noise``."""
+        """A new episode at t = 0: ``(observation, state)``. ``key`` draws the random start (``start_noise``), the
+        uncertain parameters and the episode's noise; a deterministic env uses it only with ``start_noise``."""
         x0 = jnp.asarray(params.x0)
+        theta = noise = None
+        if self.stochastic:  # separate streams; a deterministic env keeps drawing its start from the key itself
+            key, k_theta, k_obs, noise = jax.random.split(key, 4)
+            theta = draw(self.system, k_theta, self.options.widen, x0.dtype) if self.randomized else None
+            noise = noise if self.process_sigma is not None or self.observation_std is not None else None
         if self.options.start_noise > 0:
             scale = jnp.asarray(state_scale(self.system), x0.dtype)
             u = jax.random.uniform(key, x0.shape, x0.dtype, -1.0, 1.0)
             a = self.system.arrays()
             x0 = jnp.clip(x0 + self.options.start_noise * scale * u, jnp.asarray(a["x_lower"], x0.dtype),
                           jnp.asarray(a["x_upper"], x0.dtype))
-        state = EnvState(x=x0, k=jnp.zeros((), jnp.int32))
-        return self.observation(state), state
+        state = EnvState(x=x0, k=jnp.zeros((), jnp.int32), theta=theta, key=noise)
+        return (self._observe(state, k_obs) if noise is not None else self.observation(state)), state
 
     def step_env(self, state: EnvState, action: Any, params: ProblemData):
         """One step without the automatic reset: ``(obs, state, reward, terminated, truncated, info)``."""
         opts, system = self.options, self.system
-        x = state.x
-        dtype = x.dtype
-        u = self.control(action).astype(dtype)
-        p = params.params
-        n, s = system.n_states, opts.substeps
-        h = float(system.horizon) / (opts.steps * s)
-
-        def f_aug(y, u, t):
-            return jnp.concatenate([system.dynamics(y[:n], u, t, p),
-                                    jnp.reshape(system.running_cost(y[:n], u, t, p), (1,)).astype(dtype)])
-
-        def substep(j, y):
-            # t = (k s + j) h, not a running sum: the times of rollout_with_cost exactly (the consistency test).
-            t = (state.k * s + j).astype(dtype) * h
-            return opts.integrator.step(f_aug, y, t, h, u, u)
-
-        y = jnp.concatenate([x, jnp.zeros((1,), dtype)])
-        y = substep(0, y) if s == 1 else jax.lax.fori_loop(0, s, substep, y)
-        x_next, running = y[:n], y[n]
+        key = k_dw = k_obs = None
+        if state.key is not None:
+            key, k_dw, k_obs = jax.random.split(state.key, 3)
+        p = params.params if state.theta is None else with_values(system, params.params, state.theta)
+        u = self.control(action).astype(state.x.dtype)
+        x_next, running = self._advance(state, u, p, k_dw)
+        dtype = x_next.dtype
         k_next = state.k + 1
         terminated = k_next >= opts.steps
         limit = opts.steps if opts.max_steps is None else opts.max_steps
@@ -222,8 +300,8 @@ class Env:
         terminal = jnp.asarray(system.terminal_cost(x_next, T, p), dtype)
         penalty = self._terminal_penalty(x_next)
         cost = running + jnp.where(terminated, terminal + penalty, jnp.zeros((), dtype))
-        next_state = EnvState(x=x_next, k=k_next)
-        obs = self.observation(next_state)
+        next_state = EnvState(x=x_next, k=k_next, theta=state.theta, key=key)
+        obs = self.observation(next_state) if k_obs is None else self._observe(next_state, k_obs)
         info = {
             "final_observation": obs,
             "control": u,
@@ -232,6 +310,36 @@ class Env:
             "bound_violation": jnp.max(self._outside(x_next)),
         }
         return obs, next_state, -cost, terminated, truncated, info
+
+    def _advance(self, state: EnvState, u: Any, p: Any, key: Any) -> tuple[Any, Any]:
+        """(x_{k+1}, the running cost over the step): ``substeps`` steps of the integrator (with process noise, of
+        its stochastic scheme, the Wiener increments drawn from ``key``) on the state and the cost as one more
+        state, which carries no noise."""
+        opts, system = self.options, self.system
+        x = state.x
+        dtype = x.dtype
+        n, s = system.n_states, opts.substeps
+        h = float(system.horizon) / (opts.steps * s)
+
+        def f_aug(y, u, t):
+            return jnp.concatenate([system.dynamics(y[:n], u, t, p),
+                                    jnp.reshape(system.running_cost(y[:n], u, t, p), (1,)).astype(dtype)])
+
+        sigma, scheme = self.process_sigma, self.sde_scheme
+        if sigma is not None:
+            sigma = jnp.append(jnp.asarray(sigma, dtype), jnp.zeros((1,), dtype))
+            dw = jnp.concatenate([increments(key, s, n, h, dtype), jnp.zeros((s, 1), dtype)], axis=1)
+
+        def substep(j, y):
+            # t = (k s + j) h, not a running sum: the times of rollout_with_cost exactly (the consistency test).
+            t = (state.k * s + j).astype(dtype) * h
+            if sigma is None:
+                return opts.integrator.step(f_aug, y, t, h, u, u)
+            return scheme.step(f_aug, y, t, h, u, sigma, dw[j])
+
+        y = jnp.concatenate([x, jnp.zeros((1,), dtype)])
+        y = substep(0, y) if s == 1 else jax.lax.fori_loop(0, s, substep, y)
+        return y[:n], y[n]
 
     def step(self, key: Any, state: EnvState, action: Any, params: ProblemData):
         """One step, resetting when the episode ends: ``(obs, state, reward, terminated, truncated, info)``.

@@ -28,6 +28,7 @@ from ..data import batch_data
 from ..loader import load
 from ..system import System
 from ..systems import NAMES
+from ..uncertainty import uncertain_spec
 from .env import Env, make_jax
 from .render import draw_traces
 
@@ -64,7 +65,8 @@ def _single(env: Env):
         # Everything the step returns packed into one vector: one device-to-host copy per step, not eleven.
         obs, state, reward, terminated, truncated, info = env.step_env(state, action, data)
         scalars = [reward, terminated, truncated, info["running_cost"], info["penalty"], info["bound_violation"]]
-        return jnp.concatenate([obs, jnp.stack([jnp.asarray(v, obs.dtype) for v in scalars]), info["control"]]), state
+        packed = [obs, jnp.stack([jnp.asarray(v, obs.dtype) for v in scalars]), info["control"], state.x]
+        return jnp.concatenate(packed), state
 
     return jax.jit(env.reset), jax.jit(step)
 
@@ -74,8 +76,20 @@ def _batched(env: Env):
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 
 
+def _drawn(env: Env, state: Any) -> dict[str, np.ndarray]:
+    """The episode's drawn uncertain parameters, {name: value (or (B,) values)}; empty unless randomised."""
+    if state is None or state.theta is None:
+        return {}
+    theta = np.asarray(state.theta, np.float64)
+    return {name: theta[..., i] for i, name in enumerate(uncertain_spec(env.system)[0])}
+
+
 class MyriadEnv(gymnasium.Env):
     """One system as a Gymnasium environment.
+
+    A spec with uncertainty (schema 3) is randomised at every ``reset`` (its drawn parameters in the reset's
+    ``info["params"]`` and :attr:`episode_params`) and noisy as declared; the options ``randomize``, ``widen``,
+    ``process_noise_scale`` and ``observation_noise_scale`` control it (README.md in this folder: uncertainty).
 
     Args:
         system: a shipped name, a spec path or a :class:`~myriad.runtime.system.System`.
@@ -109,7 +123,13 @@ class MyriadEnv(gymnasium.Env):
         obs, self._state = self._reset_fn(key, self.data)
         self._over = False
         self._history = ([0.0], [np.asarray(self._state.x, np.float64)], [])
-        return np.asarray(obs, np.float32), {}
+        drawn = self.episode_params
+        return np.asarray(obs, np.float32), ({"params": {k: float(v) for k, v in drawn.items()}} if drawn else {})
+
+    @property
+    def episode_params(self) -> dict[str, np.ndarray]:
+        """The current episode's draw of the uncertain parameters ({} unless the env is randomised)."""
+        return _drawn(self.core, self._state)
 
     def step(self, action):
         if self._state is None or self._over:
@@ -119,13 +139,14 @@ class MyriadEnv(gymnasium.Env):
         packed, self._state = self._step_fn(self._state, action, self.data)
         packed = np.asarray(packed, dtype=np.float64)
         n = self.core.observation_size
-        obs, control = packed[:n], packed[n + len(_SCALARS):]
+        first, m = n + len(_SCALARS), self.core.action_size
+        obs, control, x = packed[:n], packed[first:first + m], packed[first + m:]
         values = dict(zip(_SCALARS, packed[n:n + len(_SCALARS)].tolist()))
         terminated, truncated = bool(values.pop("terminated")), bool(values.pop("truncated"))
         self._over = terminated or truncated
         times, states, controls = self._history
         times.append(float(self.system.horizon) * len(times) / self.core.options.steps)
-        states.append(obs[:-1])
+        states.append(x)  # the true state: the observation may be noisy
         controls.append(control)
         reward = values.pop("reward")
         return np.asarray(obs, np.float32), reward, terminated, truncated, {**values, "control": control.copy()}
@@ -172,6 +193,12 @@ class MyriadVectorEnv(VectorEnv):
         self._reset_fn, self._step_fn = _batched(self.core)
         self._key = None
         self._state = None
+
+    @property
+    def episode_params(self) -> dict[str, np.ndarray]:
+        """Each env's current draw of the uncertain parameters, {name: (num_envs,)} ({} unless randomised): a
+        new draw wherever an episode auto-resets."""
+        return _drawn(self.core, self._state)
 
     def _keys(self):
         self._key, sub = jax.random.split(self._key)
