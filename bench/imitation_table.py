@@ -171,20 +171,35 @@ def bc_from_dagger(record: dict) -> dict:
     return row
 
 
-def run_learners(system: str, demos: int, seed: int, methods: list[str], base, separate_bc: bool = False) -> list:
-    """The rows of ``methods`` at one (system, demos, seed), each by ``run_imitation`` (module docstring)."""
-    import dataclasses
+def refused(system: str, method: str, demos: int, seed: int, why: str) -> dict:
+    """The row of a method that does not apply to the system (e2e without learnable parameters)."""
+    return {"system": system, "method": method, "demos": demos, "seed": seed, "normalized_score": None,
+            "status": "refused", "message": why, "seconds": 0.0}
 
-    from myriad.runtime.imitation import run_imitation
+
+def run_learners(system: str, demos: int, seed: int, methods: list[str], values: dict,
+                 separate_bc: bool = False) -> list:
+    """The rows of ``methods`` at one (system, demos, seed), each by ``run_imitation`` with the ``--set`` values
+    (module docstring). The config is built per method, not replaced from one: ImitateConfig's defaults depend on
+    the method (e2e's start noise is 0)."""
+    from myriad.runtime.configs import build
+    from myriad.runtime.imitation import ImitateConfig, run_imitation
+    from myriad.runtime.imitation.e2e import require_learnable
+    from myriad.runtime.loader import load
 
     rows = []
     for method in methods:
         if method == "bc" and "dagger" in methods and not separate_bc:
             continue  # from DAgger's run below
+        config = build(ImitateConfig, {**values, "method": method, "demos": demos, "seed": seed})
+        if method == "e2e":
+            try:
+                require_learnable(load(system), config.e2e)
+            except ValueError as exc:
+                rows.append(refused(system, method, demos, seed, str(exc)))
+                continue
         t = time.perf_counter()
-        report = run_imitation(system, dataclasses.replace(base, method=method, demos=demos, seed=seed),
-                               progress=False)
-        record = report.record()
+        record = run_imitation(system, config, progress=False).record()
         rows.append(_row(record, method, time.perf_counter() - t))
         if method == "dagger" and "bc" in methods and not separate_bc:
             rows.append(bc_from_dagger(record))
@@ -242,7 +257,7 @@ def pending(results: Results, job: tuple, methods: list[str], args) -> list[str]
     return [m for m in methods if not results.done(system, m, demos, seed)]
 
 
-def run_table(args, base, results: Results, methods: list[str], runner=run_learners, progress=None) -> Results:
+def run_table(args, values: dict, results: Results, methods: list[str], runner=run_learners, progress=None) -> Results:
     """Every job not yet in ``results``, each written as it finishes; the progress meter counts the jobs."""
     from myriad.runtime.learn.progress import progress_meter
 
@@ -262,9 +277,9 @@ def run_table(args, base, results: Results, methods: list[str], runner=run_learn
                 todo_methods = pending(results, job, methods, args)
                 if "bc" in todo_methods and "dagger" in methods and "dagger" not in todo_methods:
                     todo_methods = [m for m in todo_methods if m != "bc"] + ["bc"]  # DAgger done: BC on its own
-                    rows = runner(system, demos, seed, todo_methods, base, separate_bc=True)
+                    rows = runner(system, demos, seed, todo_methods, values, separate_bc=True)
                 else:
-                    rows = runner(system, demos, seed, todo_methods, base, separate_bc=args.separate_bc)
+                    rows = runner(system, demos, seed, todo_methods, values, separate_bc=args.separate_bc)
                 results.add(*rows)
             meter.update(f"{system} {kind}{'' if demos is None else f' {demos} demos seed {seed}'} "
                          f"{time.perf_counter() - t:.0f} s")
@@ -283,6 +298,10 @@ def aggregate(results: Results, systems: list[str], methods: list[str], demos: l
                 mine = [r for r in rows if (r["system"], r["method"], r["demos"]) == (system, method, d)]
                 if not mine:
                     continue
+                if all(r["status"] == "refused" for r in mine):
+                    per[f"{system}|{method}|{d}"] = {"refused": mine[0]["message"], "runs": len(mine)}
+                    continue
+                mine = [r for r in mine if r["status"] != "refused"]
                 scores = [r["normalized_score"] for r in mine]
                 secs = [r["seconds"] for r in mine]
                 per[f"{system}|{method}|{d}"] = {**summarise([scores]), "seeds": [r["seed"] for r in mine],
@@ -298,6 +317,8 @@ def aggregate(results: Results, systems: list[str], methods: list[str], demos: l
 
 
 def _cell(s: dict | None) -> str:
+    if s and "refused" in s:
+        return "does not apply" + (" (no learnable parameters)" if "learnable" in s["refused"] else "")
     if not s or s.get("iqm") is None:
         return "-" if not s else f"failed ({s['runs']} runs)"
     lo, hi = s["ci"]
@@ -341,7 +362,7 @@ def markdown(results: Results, systems: list[str], methods: list[str], demos: li
             cells = [agg["per"].get(f"{system}|{method}|{d}") for d in demos]
             if not any(cells):
                 continue
-            slowest = max(c["max_seconds"] for c in cells if c)
+            slowest = max((c["max_seconds"] for c in cells if c and "max_seconds" in c), default=0.0)
             lines.append(f"| | {method} | " + " | ".join(_cell(c) for c in cells) + f" | {slowest:.0f} |")
     lines += ["", "Over all systems (IQM of every run, systems as the bootstrap's strata):", "",
               f"| method | {names} |",
@@ -435,7 +456,8 @@ def parse(argv=None):
 
 
 def setup(args):
-    """The learners' base config and settings record, and the methods that run (exit 2 on bad input)."""
+    """The ``--set`` values, the settings record (the config they make, less what each run sets), the methods that
+    run and the systems' titles (exit 2 on bad input)."""
     from myriad.runtime.configs import build, parse_value, to_json
     from myriad.runtime.imitation import ImitateConfig
     from myriad.runtime.loader import load
@@ -466,7 +488,7 @@ def setup(args):
     methods = [m for m in args.methods if m not in skipped]
     settings = to_json(base, skip=("method", "demos", "seed"))
     settings["bc"] = "separate" if args.separate_bc else "from dagger"
-    return base, settings, methods, skipped, labels
+    return values, settings, methods, skipped, labels
 
 
 def machine() -> dict:
@@ -478,7 +500,7 @@ def machine() -> dict:
 
 def main(argv=None) -> None:
     args = parse(argv)
-    base, settings, methods, skipped, labels = setup(args)
+    values, settings, methods, skipped, labels = setup(args)
     try:
         results = Results(args.json, settings)
     except ValueError as exc:
@@ -490,7 +512,7 @@ def main(argv=None) -> None:
     if not args.no_run:
         start = time.perf_counter()
         results.data["machine"].setdefault("runs", []).append({"start": machine(), "argv": sys.argv[1:]})
-        run_table(args, base, results, methods, progress=args.progress)
+        run_table(args, values, results, methods, progress=args.progress)
         results.data["machine"]["runs"][-1].update(end=machine(), seconds=time.perf_counter() - start)
         results.save()
     text = markdown(results, args.systems, methods, args.demos, labels)

@@ -128,3 +128,13 @@ def test_a_real_row_and_bc_from_dagger_is_bc(tmp_path):
     assert b["mpc"]["score"] > 99.0
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| Simple Case | optimum | 100 by definition" in (tmp_path / "t.md").read_text()
+
+
+def test_a_method_that_does_not_apply_is_said_so_not_scored(tmp_path):
+    results = te.Results(str(tmp_path / "t.json"), {})
+    why = "simple_case declares no learnable parameters, so --method e2e has no model to learn"
+    results.add(*(te.refused("simple_case", "e2e", 1, s, why) for s in (0, 1, 2)))
+    agg = te.aggregate(results, ["simple_case"], ["e2e"], [1])
+    assert agg["per"]["simple_case|e2e|1"]["refused"] == why and "e2e|1" not in agg["overall"]
+    text = te.markdown(results, ["simple_case"], ["e2e"], [1], {"simple_case": "Simple Case"})
+    assert "| | e2e | does not apply (no learnable parameters) |" in text
