@@ -10,12 +10,15 @@ over a step; the planner's single shooting interpolates its node controls linear
 mean of the actions either side of it (u_{k-1} + u_k) / 2 (u_0 and u_{N-1} at the ends): the held action is the
 interpolant's value at the step's midpoint to second order, where using u_k at node k would bias theta by O(h).
 
-The learnt model then plans once, open loop (``runtime/learn/evaluate``'s plan on the learnt model, the one
-evaluation every learner uses), and the env plays that plan: Algorithm 2 learns a model whose *plan* is the
-expert's, and this is how ``runtime/e2e`` judges it. Each step plays the mean of its interval's two node controls
-(the linear interpolant's mean over the step). Under observation noise an open-loop plan sees nothing, so its noise
-score is its nominal one; under mismatch it plays the same plan in the mismatched env. (MPC on the learnt model
-would re-plan at every step: N solves an episode, times the scored episodes.)
+The learnt model then plans once, open loop, and the env plays that plan: Algorithm 2 learns a model whose *plan* is
+the expert's, and this is how ``runtime/e2e`` judges it. A parametric model plans on the env's own problem (MPC's
+planning NLP from step 0, ``runtime/datasets``' ``optimal_controls``: the env's grid, hold, integrator and terminal
+penalty, so the true parameters give the reference optimum itself) with the learnt parameters and cost weights;
+a Neural ODE, which that problem cannot hold, plays the plan ``runtime/e2e`` judged (``evaluate``'s plan on the
+learnt model), each step the mean of its interval's two node controls (the linear interpolant's mean over the step).
+Under observation noise an open-loop plan sees nothing, so its noise score is its nominal one; under mismatch it
+plays the same plan in the mismatched env. (MPC on the learnt model would re-plan at every step: N solves an
+episode, times the scored episodes.)
 """
 
 from __future__ import annotations
@@ -24,11 +27,14 @@ import dataclasses
 import os
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..datasets.policies import optimal_controls
 from ..e2e import E2EConfig, E2EReport, run_e2e
 from ..learn.evaluate import apply_plan
+from ..learn.models import Parametric
 from ..rl.env import Env
 from ..solution import Solution
 from ..status import Status
@@ -36,7 +42,8 @@ from ..system import System
 from ..transcriptions import SingleShooting
 from ..transcriptions.nominal_scales import state_scale
 
-__all__ = ["EndToEnd", "PlanPolicy", "check_starts", "expert_of", "learn_end_to_end", "require_learnable"]
+__all__ = ["EndToEnd", "PlanPolicy", "check_starts", "expert_of", "learn_end_to_end", "learnt_plan",
+           "require_learnable"]
 
 START_TOLERANCE = 1e-9  # of each state's nominal scale: the demonstrations' starts must be the spec's x0
 
@@ -80,6 +87,7 @@ class EndToEnd:
     report: E2EReport
     plan: np.ndarray  # (N, m): the learnt model's plan held over each env step
     policy: PlanPolicy
+    plan_status: str  # its solve's status word ("converged" where it did)
 
 
 def expert_of(system: System, observations: np.ndarray, controls: np.ndarray, transcription: SingleShooting,
@@ -113,6 +121,17 @@ def learn_end_to_end(system: System, env: Env, observations: np.ndarray, control
     expert = expert_of(system, observations, controls, transcription, source)
     report = run_e2e(system, config, transcription=transcription, expert=expert, checkpoint_dir=checkpoint_dir,
                      resume=resume, progress=progress)
+    plan, status = learnt_plan(env, report)
+    return EndToEnd(report, plan, PlanPolicy(plan.shape[0], float(system.horizon)), status)
+
+
+def learnt_plan(env: Env, report: E2EReport) -> tuple[np.ndarray, str]:
+    """The learnt model's open-loop plan on the env's grid, (N, m) in the control's units, and its solve's status
+    word (module docstring)."""
+    if isinstance(report.model, Parametric):
+        params = {k.removeprefix("cost."): float(v) for k, v in report.learned.items()}
+        data = jax.tree.map(lambda a: jnp.asarray(a)[None], env.default_params(params))
+        controls, record = optimal_controls(env, data)  # one episode: the batch of one
+        return np.asarray(controls[0], np.float64), record["plan_status"][0]
     nodes = np.asarray(report.evaluation.plan.controls, np.float64)
-    plan = 0.5 * (nodes[:-1] + nodes[1:])
-    return EndToEnd(report, plan, PlanPolicy(plan.shape[0], float(system.horizon)))
+    return 0.5 * (nodes[:-1] + nodes[1:]), report.evaluation.plan.status.name.lower()

@@ -230,12 +230,15 @@ def _cloned(system: System, env, config: ImitateConfig, obs, controls, sub, *, r
 def _end_to_end(system: System, env, config: ImitateConfig, obs, controls, sub, *, resume, progress,
                 dataset) -> dict:
     """The end-to-end learner on the demonstrations (:mod:`.e2e`): the report's fields; the record's ``e2e`` holds
-    the learnt parameters beside the true ones, the iterations and the final imitation loss."""
+    the learnt parameters beside the true ones, the iterations, the final imitation loss and the plan's status."""
     source = "the demonstrations" if dataset is None else f"--dataset {dataset}"
     learnt = learn_end_to_end(system, env, obs, controls, config.e2e, checkpoint_dir=sub("e2e"), resume=resume,
                               progress=progress, source=source)
     rec = learnt.report.record()
     keys = ("learned", "true", "iterations", "imitation_loss", "relative_gap", "status", "counts")
-    status = learnt.report.status
-    return {"policy": learnt.policy, "net": learnt.plan, "status": status, "message": learnt.report.message,
-            "fit_history": [], "history": [], "counts": {"e2e": {k: rec[k] for k in keys}}, "e2e": learnt.report}
+    summary = {**{k: rec[k] for k in keys}, "plan_status": learnt.plan_status}
+    message = learnt.report.message
+    if learnt.plan_status != "converged":  # scored all the same: the record says what was played
+        message = f"{message}; the learnt model's plan on the env's grid: {learnt.plan_status}"
+    return {"policy": learnt.policy, "net": learnt.plan, "status": learnt.report.status, "message": message,
+            "fit_history": [], "history": [], "counts": {"e2e": summary}, "e2e": learnt.report}

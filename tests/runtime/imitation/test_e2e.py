@@ -45,6 +45,7 @@ def test_e2e_from_20_demonstrations_recovers_the_parameters_and_scores_at_least_
     for name in true:
         assert abs(learned[name] - true[name]) <= 0.015 * true[name], (name, learned, true)
     assert rec["normalized_score"] >= 80.0 and rec["e2e"]["counts"]["implicit"] == 300
+    assert rec["e2e"]["plan_status"] == "converged"  # the learnt parameters' plan on the env's own problem
     # An open-loop plan observes nothing: its noise score is its nominal one; mismatch plays it in another env.
     assert rec["noise"]["normalized_score"] == rec["normalized_score"]
     assert np.isfinite(rec["mismatch"]["normalized_score"])
