@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import math
 
+import sympy
+
 from .errors import ErrorLog, Location, SpecError
+from .expressions import ExpressionParser
 from .schema import Distribution, Parameter, SymbolicProblem
 
 __all__ = ["MAX_SAMPLES", "check_uncertainty", "support"]
@@ -50,6 +53,8 @@ def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
         bounds_ok = p.bounds is not None and log.attempt(_check_param_bounds, sym, p)
         if bounds_ok and value is not None:
             log.attempt(_check_nominal_in_bounds, sym, p, value)
+        if p.value.number is None and value is not None:
+            log.attempt(_check_value_uses, sym, p)
         if p.uncertain is not None and log.attempt(_check_distribution, sym, p.name, p.uncertain):
             valid.add(p.name)
             log.attempt(_check_structural, sym, p)
@@ -126,6 +131,20 @@ def _check_domain(sym: SymbolicProblem, p: Parameter) -> None:
     }[d.kind]
     raise _error(sym, f"`{_describe(d)}` of `{p.name}` takes values in ({s_lo:g}, {s_hi:g}), outside its bounds "
                  f"[{lo:g}, {hi:g}]; {hint}", d.loc)
+
+
+def _check_value_uses(sym: SymbolicProblem, p: Parameter) -> None:
+    """A parameter's value written with an uncertain parameter is evaluated at its nominal value: the two would not
+    move together when one is drawn (each parameter is its own leaf)."""
+    spec = sym.spec
+    earlier = {q.name: sympy.Symbol(q.name, real=True) for q in spec.parameters[:spec.parameters.index(p)]}
+    used = ExpressionParser(earlier, spec.lines, "").parse(p.value).free_symbols
+    drawn = [q.name for q in spec.parameters if q.uncertain is not None and earlier.get(q.name) in used]
+    if drawn:
+        names = ", ".join(f"`{n}`" for n in drawn)
+        raise _error(sym, f"the value of `{p.name}` uses the uncertain parameter(s) {names}, so it is fixed at their "
+                     f"nominal values and would not move with a draw; write `{p.name}` as a definition (definitions "
+                     "follow the parameters they use), or give it a number", p.value.loc)
 
 
 def _check_structural(sym: SymbolicProblem, p: Parameter) -> None:
