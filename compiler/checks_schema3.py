@@ -53,7 +53,7 @@ def check_uncertainty(sym: SymbolicProblem, log: ErrorLog) -> None:
         bounds_ok = p.bounds is not None and log.attempt(_check_param_bounds, sym, p)
         if bounds_ok and value is not None:
             log.attempt(_check_nominal_in_bounds, sym, p, value)
-        if p.value.number is None and value is not None:
+        if p.value.number is None and value is not None and any(q.uncertain for q in spec.parameters):
             log.attempt(_check_value_uses, sym, p)
         if p.uncertain is not None and log.attempt(_check_distribution, sym, p.name, p.uncertain):
             valid.add(p.name)
@@ -138,7 +138,10 @@ def _check_value_uses(sym: SymbolicProblem, p: Parameter) -> None:
     move together when one is drawn (each parameter is its own leaf)."""
     spec = sym.spec
     earlier = {q.name: sympy.Symbol(q.name, real=True) for q in spec.parameters[:spec.parameters.index(p)]}
-    used = ExpressionParser(earlier, spec.lines, "").parse(p.value).free_symbols
+    try:
+        used = ExpressionParser(earlier, spec.lines, "").parse(p.value).free_symbols
+    except SpecError:  # its numbers were read (value is not None); names that fail to read are not ours to report
+        return
     drawn = [q.name for q in spec.parameters if q.uncertain is not None and earlier.get(q.name) in used]
     if drawn:
         names = ", ".join(f"`{n}`" for n in drawn)
