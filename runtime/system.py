@@ -7,6 +7,8 @@ no state, so a system is hashable and can be a static argument of ``jax.jit``; p
 
 Schema 2 (path constraints, a free final time): the class attributes and methods for them have defaults here that
 mean "none" (a fixed horizon, no path constraints), so schema 1 modules need not, and do not, mention them.
+Schema 3 (uncertainty: distributions of parameters, scenarios, a robust objective, noise) likewise: its attributes
+default to "nothing uncertain, no noise", and only schema 3 modules write them (specs/README.md says what each means).
 
 Free final time (``free_horizon``): ``horizon`` holds the spec's *guess* of T, so code that reads it keeps working, but
 T is a decision variable in ``[*horizon_bounds]``. A transcription maps physical time to ``t = T * tau`` with
