@@ -24,6 +24,7 @@ from ..uncertainty._systems import (
     four_parameters,
     ornstein_uhlenbeck,
     ou_moments,
+    plain,
 )
 
 KEY = jax.random.PRNGKey(0)
@@ -71,7 +72,7 @@ def test_an_episode_runs_on_its_drawn_parameters_and_randomize_false_on_the_give
 
 
 def test_every_option_off_steps_the_deterministic_env_to_the_bit():
-    base = declared("four_parameters")
+    base = plain("four_parameters")
     noisy = four_parameters(process_noise=(0.0, 0.2), observation_noise=(0.1, 0.0))
     off = EnvOptions(steps=10, substeps=2, start_noise=0.2, randomize=False, process_noise_scale=0.0,
                      observation_noise_scale=0.0)
@@ -88,7 +89,7 @@ def test_every_option_off_steps_the_deterministic_env_to_the_bit():
 def test_ornstein_uhlenbeck_x_T_has_the_closed_form_mean_and_variance():
     # dx = -2 x dt + dW, x(0) = 1, T = 1; stochastic Heun on 100 steps (h = 0.01: its bias ~1e-4 of the variance,
     # well inside the 3 standard errors, about 3e-2 of it, of 2 10^4 paths)
-    env = Env(ornstein_uhlenbeck(1.0), EnvOptions(steps=50, substeps=2))
+    env = Env(ornstein_uhlenbeck(), EnvOptions(steps=50, substeps=2))
     assert env.sde_scheme.label == "heun" and env.observation_bounds[0][0] == -np.inf
     assert_mean_and_variance(_final_states(env, 20_000), *ou_moments(2.0, 1.0, 1.0, 1.0))
 
@@ -97,7 +98,7 @@ def test_ornstein_uhlenbeck_x_T_has_the_closed_form_mean_and_variance():
 def test_the_env_steps_the_schemes_exact_moments_on_a_coarse_grid(integrator, label):
     # 2 steps of 2 substeps (theta h = 0.5): Monte Carlo against the scheme's own closed form, so the env's
     # substeps, times and increments are the scheme's
-    env = Env(ornstein_uhlenbeck(1.0), EnvOptions(steps=2, substeps=2, integrator=integrator))
+    env = Env(ornstein_uhlenbeck(), EnvOptions(steps=2, substeps=2, integrator=integrator))
     assert_mean_and_variance(_final_states(env, 100_000, seed=1), *ou_moments(2.0, 1.0, 1.0, 1.0, 4, label))
 
 
@@ -110,7 +111,7 @@ def test_the_envs_weak_error_converges_at_the_stated_order(integrator, order, gr
     exact = np.array(ou_moments(2.0, 1.0, 1.0, 1.0))
     errors = []
     for n in grids:
-        x = _final_states(Env(ornstein_uhlenbeck(1.0), EnvOptions(steps=n, integrator=integrator)), 1_000_000)
+        x = _final_states(Env(ornstein_uhlenbeck(), EnvOptions(steps=n, integrator=integrator)), 1_000_000)
         errors.append(np.abs(np.array([x.mean(), x.var(ddof=1)]) - exact))
     observed = np.log2(errors[-2] / errors[-1])
     assert np.all(np.abs(observed - order) <= [0.5, 0.3]), observed
@@ -132,8 +133,8 @@ def test_observation_noise_is_added_to_the_observed_states_only():
 
 def test_options_are_checked():
     with pytest.raises(ValueError, match="integrator='heun'.*process_noise_scale=0"):
-        Env(ornstein_uhlenbeck(1.0), EnvOptions(integrator="rk4"))
-    Env(ornstein_uhlenbeck(1.0), EnvOptions(integrator="rk4", process_noise_scale=0.0))  # no noise, any integrator
+        Env(ornstein_uhlenbeck(), EnvOptions(integrator="rk4"))
+    Env(ornstein_uhlenbeck(), EnvOptions(integrator="rk4", process_noise_scale=0.0))  # no noise, any integrator
     for bad in ({"widen": -1.0}, {"process_noise_scale": np.inf}, {"observation_noise_scale": -0.1}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             EnvOptions(**bad)
@@ -169,5 +170,5 @@ def test_the_vector_env_draws_per_env_and_reproduces_with_its_seed():
     b, _ = envs.reset(seed=0)
     np.testing.assert_array_equal(a, b)
     assert k.shape == (4,) and len(set(k.tolist())) == 4 and np.array_equal(envs.episode_params["k"], k)
-    assert MyriadEnv(declared("four_parameters")).reset(seed=0)[1] == {}  # nothing drawn: no params in info
+    assert MyriadEnv(plain("four_parameters")).reset(seed=0)[1] == {}  # nothing drawn: no params in info
     assert math.isfinite(float(envs.step(np.zeros((4, 1)))[1][0]))

@@ -1,5 +1,5 @@
-"""Test systems with declared uncertainty: compiled schema 1 specs (./specs/) subclassed with schema 3's class
-attributes (runtime/system.py's defaults are "none"), so the runtime is tested without the schema 3 compiler."""
+"""Test systems with declared uncertainty: the schema 3 specs in ./specs/ as compiled, and subclasses of them that
+set schema 3's class attributes otherwise (another noise level, a malformed declaration, none at all)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from myriad.runtime.uncertainty import distributions as D
 
 SPECS = Path(__file__).resolve().parent / "specs"
 
-# One parameter per distribution: k uniform, c normal, g lognormal, m choice.
+# specs/four_parameters.yaml's declaration, one parameter per distribution: k uniform, c normal, g lognormal,
+# m choice (a test checks that the compiler wrote these).
 FOUR = {
     "uncertain_params": ("k", "c", "g", "m"),
     "uncertain_kinds": ("uniform", "normal", "lognormal", "choice"),
@@ -30,14 +31,21 @@ def declared(spec: str, **attrs):
     return type(base.__name__ + "Declared", (base,), dict(attrs))()
 
 
+def plain(spec: str):
+    """The spec's system with nothing uncertain and no noise (schema 3's defaults)."""
+    return declared(spec, uncertain_params=(), uncertain_kinds=(), uncertain_args=(), process_noise=(),
+                    observation_noise=())
+
+
 def four_parameters(**extra):
-    """The damped oscillator with its four parameters uncertain (FOUR), plus ``extra`` attributes."""
-    return declared("four_parameters", **FOUR, **extra)
+    """The damped oscillator with its four parameters uncertain (FOUR), as compiled, or with ``extra``
+    attributes."""
+    return declared("four_parameters", **extra) if extra else load(SPECS / "four_parameters.yaml")
 
 
-def ornstein_uhlenbeck(sigma: float, **extra):
-    """dx = (-theta x + u) dt + sigma dW, theta = 2, x(0) = 1, T = 1."""
-    return declared("ornstein_uhlenbeck", process_noise=(sigma,), **extra)
+def ornstein_uhlenbeck():
+    """dx = (-theta x + u) dt + sigma dW, theta = 2, sigma = 1, x(0) = 1, T = 1 (schema 3's process noise)."""
+    return load(SPECS / "ornstein_uhlenbeck.yaml")
 
 
 def assert_moments(draws, kinds, args, widen=1.0):

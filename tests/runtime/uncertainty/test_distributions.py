@@ -9,9 +9,15 @@ import pytest
 
 from myriad.runtime.uncertainty import distributions as D
 
-from ._systems import FOUR, assert_moments, declared, four_parameters
+from ._systems import FOUR, assert_moments, declared, four_parameters, plain
 
 M = 10_000
+
+
+def test_the_compiled_declaration_is_the_specs():
+    system = four_parameters()
+    assert system.schema == 3 and {k: getattr(system, k) for k in FOUR} == FOUR
+    assert D.uncertain_spec(system) == tuple(FOUR.values())
 
 
 @pytest.mark.parametrize("widen", [1.0, 2.5])
@@ -48,7 +54,7 @@ def test_a_row_of_sample_is_draw_of_its_key_and_draw_vmaps_over_keys_and_widen()
     widened = jax.jit(jax.vmap(lambda k, w: D.draw(system, k, w)))(keys, np.array([1.0, 1.0, 0.0]))
     np.testing.assert_array_equal(np.asarray(widened)[:2], rows[:2])
     assert np.asarray(D.draw(system, key, dtype=np.float32)).dtype == np.float32
-    assert D.draw(declared("four_parameters"), key).shape == (0,)  # nothing declared: nothing drawn
+    assert D.draw(plain("four_parameters"), key).shape == (0,)  # nothing declared: nothing drawn
 
 
 def test_with_values_puts_the_draw_in_place():
