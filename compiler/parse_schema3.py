@@ -24,8 +24,9 @@ import yaml
 from .errors import Unresolved  # a field whose parts were already reported
 from .schema import Distribution, Noise, NoiseLevel, Robust, Scenario
 
-__all__ = ["DISTRIBUTIONS", "ROBUST_OBJECTIVES", "SCHEMA3_PARAM_FIELDS", "SCHEMA3_TOP_FIELDS", "distribution",
-           "noise", "param_bounds", "require_schema3", "robust", "scenarios"]
+__all__ = ["DEFAULT_SAMPLES", "DEFAULT_SEED", "DISTRIBUTIONS", "ROBUST_OBJECTIVES", "SCHEMA3_PARAM_FIELDS",
+           "SCHEMA3_TOP_FIELDS", "distribution", "noise", "number", "param_bounds", "require_schema3",
+           "require_schema3_param", "robust", "scenarios"]
 
 SCHEMA3_TOP_FIELDS = ("scenarios", "robust", "noise")
 SCHEMA3_PARAM_FIELDS = ("uncertain", "bounds")
@@ -43,7 +44,7 @@ DEFAULT_SAMPLES, DEFAULT_SEED = 16, 0
 _KINDS = ", ".join(f"`{{{k}: {shape}}}`" for k, (shape, _) in DISTRIBUTIONS.items())
 
 
-def _needs3(r, key: str, schema: int) -> str:
+def _needs3(key: str, schema: int) -> str:
     return (f"`{key}` needs `schema: 3` (this file declares `schema: {schema}`); change the `schema:` line to "
             "`schema: 3`")
 
@@ -55,13 +56,13 @@ def require_schema3(r, schema: int, top: dict) -> None:
         return
     for key in SCHEMA3_TOP_FIELDS:
         if key in top:
-            r.log.add(r.error(_needs3(r, key, schema), r.loc(top[key][0], (key,))))
+            r.log.add(r.error(_needs3(key, schema), r.loc(top[key][0], (key,))))
 
 
 def require_schema3_param(r, name: str, key: str, key_node: yaml.Node) -> None:
     """A parameter field of schema 3 (`uncertain`, `bounds`) in an earlier schema's file: an error at that key."""
     if r.schema < 3:
-        raise r.error(_needs3(r, key, r.schema), r.loc(key_node, ("parameters", name, key)))
+        raise r.error(_needs3(key, r.schema), r.loc(key_node, ("parameters", name, key)))
 
 
 def number(r, node: yaml.Node, path: tuple[str, ...], what: str, allow_inf: bool = False) -> float:
@@ -182,7 +183,7 @@ def _objective(r, node: yaml.Node):
     value = r.scalar(node, path)
     if value == "cvar":
         raise r.error("`cvar` needs its alpha: write `objective: {cvar: 0.9}` (0 < alpha < 1)", r.loc(node, path))
-    if value not in ("mean", "worst"):
+    if value not in ROBUST_OBJECTIVES:
         raise r.error(f"`objective` must be `mean`, `worst` or `{{cvar: alpha}}`, got `{r.show(str(value))}`",
                       r.loc(node, path))
     return value, None, None
