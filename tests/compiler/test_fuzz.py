@@ -90,6 +90,9 @@ YAMLISH = [
     "schema: 2\n", "horizon: {free: true, guess: 2, bounds: [0.5, 10]}\n", "path_constraints:\n",
     "  c: {expression: x + u, bounds: [-.inf, 2]}\n", "free: false", "guess: .nan", "bounds: [.inf, -.inf]",
     "expression: ", "{free: true}", "[0, 1]",
+    "schema: 3\n", "scenarios: [{k: 0.5}]\n", "robust: {objective: mean}\n", "noise: {process: {x: 0.1}}\n",
+    "  k: {value: 0.5, bounds: [0, .inf], uncertain: {uniform: [0.4, 0.6]}}\n", "uncertain: {normal: [0, 1]}",
+    "{cvar: 0.9}", "samples: 0", "observation: {x: -1}",
 ]
 yamlish_text = st.lists(st.one_of(st.sampled_from(YAMLISH), st.text(max_size=8)), max_size=40).map("".join)
 
