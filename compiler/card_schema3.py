@@ -21,7 +21,7 @@ def describe(d: Distribution) -> str:
     if d.kind == "normal":
         return f"normal, mean {num(a[0])}, std {num(a[1])}"
     if d.kind == "lognormal":
-        return f"lognormal: log of it normal with mean {num(a[0])}, std {num(a[1])}"
+        return f"lognormal, log-mean {num(a[0])}, log-std {num(a[1])} (its log is normal)"
     return "one of " + ", ".join(num(v) for v in a) + " (equally likely)"
 
 
