@@ -154,7 +154,8 @@ def _write_minari(episodes: Episodes, system: System, out: Path, name: str, targ
     obs_space, act_space = _spaces(system, options)
     meta = provenance(episodes, system, spec.id if spec is not None else None)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".dataset-", dir=out))
+    # Absolute: Minari joins a relative root onto itself (`--out data/` failed with FileNotFoundError).
+    tmp = Path(tempfile.mkdtemp(prefix=".dataset-", dir=out)).resolve()
     try:
         with _minari_root(tmp), warnings.catch_warnings():
             # Minari asks for an author e-mail and a code permalink (a dataset written here has neither).
