@@ -157,6 +157,9 @@ def _scenario(r, i: int, node: yaml.Node) -> Scenario:
 def robust(r, node: yaml.Node) -> Robust:
     """``robust: {objective: mean | worst | {cvar: alpha}, samples: N, seed: S}``."""
     path = ("robust",)
+    if isinstance(node, yaml.ScalarNode):  # `robust: mean`, the usual slip
+        raise r.error(f"`robust` is a mapping: write `robust: {{objective: {r.show(node.value)}}}` (objective `mean`, "
+                      "`worst` or `{cvar: alpha}`)", r.loc(node, path))
     f = {k: (kn, vn) for k, kn, vn in r.mapping(node, path, ROBUST_FIELDS, "`robust`")}
     loc = r.loc(node, path)
     if "objective" not in f:
