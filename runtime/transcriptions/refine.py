@@ -44,8 +44,9 @@ max(1, |J|): it is a warning that the two answers disagree, not the cost's accur
 
 Stopping: all three meet the tolerance (``met``); or a limit is reached, which is reported and never called a
 success: ``max_refinements`` levels after the first solve, a next grid above ``max_intervals``, an NLP that did not
-converge, an estimate that is not a number. The last solution is returned either way (where a refined grid's NLP
-did not converge, the last grid's that did), with ``refinement`` =
+converge, an estimate that is not a number, a re-simulation gap that does not fall where it must (:func:`_stalled`:
+an unstable system or bang-bang and singular controls re-simulated open-loop). The last solution is returned either
+way (where a refined grid's NLP did not converge, the last grid's that did), with ``refinement`` =
 ``{"met", "tolerance", "reason", "history"}`` (see :class:`~myriad.runtime.solution.Solution`; each level of the
 history has its ``error``, re-simulation ``gap`` and cost ``change``, NaN where not measured).
 
