@@ -128,6 +128,10 @@ def test_schema2_problem_restated_as_schema3_is_the_same_problem():
     assert extra == set(ATTRIBUTES)
     for attr in extra:
         assert eval(dict(three.data.metadata)[attr], {}) == getattr(System, attr), attr  # our own printed literal
+    from myriad.compiler.card_schema3 import show_lines, uncertainty_blocks
+
+    assert uncertainty_blocks(three.symbolic) == ["Nothing is declared uncertain and there is no noise."]
+    assert show_lines(three.symbolic) == ["  nothing is declared uncertain, no noise"]
 
 
 def test_every_schema3_error_is_reported_in_one_run():
