@@ -78,6 +78,13 @@ class Solution:
         agreement: the discretised and re-simulated answers agree within ``agreement_tolerance`` (see the module
             docstring); None where not re-simulated. ``agreement_gap``: the measured gap in the same units, the
             largest of the cost's and the required final values' relative differences (NaN where not re-simulated).
+        robust: None for a nominal solve; for a robust plan (a spec with ``scenarios`` or ``robust``,
+            :mod:`~myriad.runtime.uncertainty.robust`) a dict: ``objective`` (mean, worst, cvar), ``alpha``,
+            ``scenarios`` (one dict each: ``params``, the uncertain parameters' values, ``cost``, and when
+            re-simulated ``simulated_cost``) and, when re-simulated, ``nominal_cost`` (the plan at the spec's
+            parameter values). ``cost`` is then the robust objective of the scenario costs, ``simulated_cost`` that of
+            the re-simulated ones, ``states`` the first scenario's and ``defect`` the largest over the scenarios.
+        scenario_states: a robust plan's states in every scenario, (S, K, n_states); None for a nominal solve.
     """
 
     system: str
@@ -109,6 +116,8 @@ class Solution:
     agreement: bool | None = None
     agreement_gap: float = math.nan
     agreement_tolerance: float = math.nan
+    robust: dict | None = None
+    scenario_states: np.ndarray | None = None
 
     @property
     def max_defect(self) -> float:
@@ -151,6 +160,7 @@ class Solution:
             "refinement": None if self.refinement is None else _refinement_record(self.refinement),
             "agreement": self.agreement, "agreement_gap": json_number(self.agreement_gap),
             "agreement_tolerance": json_number(self.agreement_tolerance),
+            **({} if self.robust is None else {"robust": _robust_record(self.robust)}),
             "compile_seconds": round(self.compile_seconds, 4), "solve_seconds": round(self.solve_seconds, 4),
         }
 
@@ -159,6 +169,14 @@ def _refinement_record(refinement: dict) -> dict:
     history = [{k: json_number(v) if isinstance(v, float) else v for k, v in level.items()}
                for level in refinement["history"]]
     return {**refinement, "tolerance": json_number(refinement["tolerance"]), "history": history}
+
+
+def _robust_record(robust: dict) -> dict:
+    """A robust plan's record (:mod:`~myriad.runtime.uncertainty.robust`): objective, alpha, every scenario's
+    parameters and cost (and re-simulated cost), the plan's re-simulated cost at the nominal parameters."""
+    numbers = lambda d: {k: json_number(v) if isinstance(v, float) else v for k, v in d.items()}  # noqa: E731
+    scenarios = [{**numbers(s), "params": numbers(s["params"])} for s in robust["scenarios"]]
+    return {**numbers(robust), "scenarios": scenarios}
 
 
 def json_number(v) -> float | None:

@@ -27,6 +27,7 @@ from .system import System
 from .transcriptions import TRANSCRIPTIONS, SingleShooting
 from .transcriptions.base import AbstractTranscription, transcribe
 from .transcriptions.refine import MeshRefinement, solve_refined
+from .uncertainty.robust import asks_robust, solve_robust
 
 __all__ = ["Solution", "solve", "solve_batch", "transcribe", "label"]
 
@@ -55,8 +56,9 @@ def solve(
     tolerance: float | None = None,
     max_refinements: int | None = None,
     max_intervals: int | None = None,
+    nominal: bool = False,
 ) -> Solution:
-    """Solve one optimal-control problem, once or with mesh refinement.
+    """Solve one optimal-control problem, once or with mesh refinement; a robust plan where the spec asks for one.
 
     Args:
         system: a system object or a name/path for :func:`myriad.runtime.load`.
@@ -77,6 +79,10 @@ def solve(
             each level starts from the previous T). None: one solve on the transcription's own grid.
         max_refinements: the most refined grids after the first solve (default 10); needs ``tolerance``.
         max_intervals: the largest grid refinement may build (default 2000); needs ``tolerance``.
+        nominal: solve the nominal problem (the spec's parameter values) even where the spec declares ``scenarios``
+            or ``robust`` (schema 3); otherwise such a spec gets one control trajectory for all its scenarios
+            (:mod:`~myriad.runtime.uncertainty.robust`: ``cost`` is the robust objective, ``robust`` its record;
+            direct transcriptions only, no mesh refinement, and ``params`` may not set an uncertain parameter).
 
     Returns:
         A :class:`Solution`; check ``converged`` (a failed solve is returned, never reported as a success) and,
@@ -100,6 +106,11 @@ def solve(
     if refine is not None and not isinstance(method, AbstractTranscription):
         raise ValueError(f"tolerance: mesh refinement needs a direct transcription ({', '.join(TRANSCRIPTIONS)}); "
                          f"{method.label} has no grid to refine")
+    if not nominal and asks_robust(system):
+        if refine is not None:
+            raise ValueError(f"tolerance: mesh refinement of a robust plan is not supported; {system.name} declares "
+                             f"scenarios or robust: drop tolerance, or solve the nominal problem (nominal=True)")
+        return solve_robust(system, method, solver, params=params, x0=x0, z0=z0, resimulate=resimulate)
     data = default_data(system, params, x0)
     if refine is None:
         sol = method.solve_problem(system, solver, data, z0)

@@ -61,6 +61,8 @@ class SolveConfig:
         seed: the seed of the x0_std draw (a sweep's task seed).
         resimulate: also re-simulate the controls with the adaptive integrator (the simulated cost and defect;
             default: yes).
+        nominal: solve the nominal problem (the spec's parameter values) where the spec declares scenarios or
+            robust (schema 3), instead of its robust plan (default: the robust plan).
     """
 
     transcription: str = "single_shooting"
@@ -74,6 +76,7 @@ class SolveConfig:
     x0_std: float = 0.0
     seed: int = 0
     resimulate: bool = True
+    nominal: bool = False
 
     def __post_init__(self):
         if not isinstance(self.solver_options, dict):
@@ -85,6 +88,8 @@ class SolveConfig:
             raise FieldError(f"seed must be an integer >= 0, got {self.seed!r}", "seed")
         if not isinstance(self.resimulate, bool):
             raise FieldError(f"resimulate must be true or false, got {self.resimulate!r}", "resimulate")
+        if not isinstance(self.nominal, bool):
+            raise FieldError(f"nominal must be true or false, got {self.nominal!r}", "nominal")
         method, _ = self.build()  # every name and option is checked by building the objects themselves
         self._check_refinement(method)
 
@@ -162,4 +167,4 @@ class SolveConfig:
 
         return solve(system, *self.build(), x0=self.x0(system), resimulate=self.resimulate,
                      tolerance=self.tolerance, max_refinements=self.max_refinements,
-                     max_intervals=self.max_intervals, **options)
+                     max_intervals=self.max_intervals, nominal=self.nominal, **options)
