@@ -31,7 +31,7 @@ from ..system import System
 from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows
 from ..transcriptions.nominal_scales import state_scale
 from ..uncertainty.distributions import draw, uncertain_spec, with_values
-from ..uncertainty.sde import SDEScheme, for_integrator, increments
+from ..uncertainty.sde import SDEScheme, for_integrator
 
 __all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
 
@@ -255,14 +255,14 @@ class Env:
         to_go = float(self.system.horizon) * ((n_steps - state.k).astype(x.dtype) / n_steps)
         return jnp.concatenate([x, jnp.reshape(to_go, (1,))])
 
-    def _observe(self, state: EnvState, key: Any) -> Any:
-        """The observation, with the observation noise std * N(0, 1) on the states when there is any."""
+    def _observe(self, state: EnvState, z: Any) -> Any:
+        """The observation, with the observation noise std * z on the states when there is any (z (n_states,)
+        standard normals)."""
         obs = self.observation(state)
         std = self.observation_std
         if std is None:
             return obs
-        std = jnp.append(jnp.asarray(std, obs.dtype), jnp.zeros((1,), obs.dtype))  # the time to go is exact
-        return obs + std * jax.random.normal(key, obs.shape, obs.dtype)
+        return obs + jnp.append(jnp.asarray(std, obs.dtype) * z, jnp.zeros((1,), obs.dtype))  # t to go: exact
 
     def reset(self, key: Any, params: ProblemData) -> tuple[Any, EnvState]:
         """A new episode at t = 0: ``(observation, state)``. ``key`` draws the random start (``start_noise``), the
@@ -280,17 +280,16 @@ class Env:
             x0 = jnp.clip(x0 + self.options.start_noise * scale * u, jnp.asarray(a["x_lower"], x0.dtype),
                           jnp.asarray(a["x_upper"], x0.dtype))
         state = EnvState(x=x0, k=jnp.zeros((), jnp.int32), theta=theta, key=noise)
-        return (self._observe(state, k_obs) if noise is not None else self.observation(state)), state
+        z = jax.random.normal(k_obs, x0.shape, x0.dtype) if self.observation_std is not None else None
+        return self._observe(state, z), state
 
     def step_env(self, state: EnvState, action: Any, params: ProblemData):
         """One step without the automatic reset: ``(obs, state, reward, terminated, truncated, info)``."""
         opts, system = self.options, self.system
-        key = k_dw = k_obs = None
-        if state.key is not None:
-            key, k_dw, k_obs = jax.random.split(state.key, 3)
+        key, z_dw, z_obs = self._normals(state)
         p = params.params if state.theta is None else with_values(system, params.params, state.theta)
         u = self.control(action).astype(state.x.dtype)
-        x_next, running = self._advance(state, u, p, k_dw)
+        x_next, running = self._advance(state, u, p, z_dw)
         dtype = x_next.dtype
         k_next = state.k + 1
         terminated = k_next >= opts.steps
@@ -301,7 +300,7 @@ class Env:
         penalty = self._terminal_penalty(x_next)
         cost = running + jnp.where(terminated, terminal + penalty, jnp.zeros((), dtype))
         next_state = EnvState(x=x_next, k=k_next, theta=state.theta, key=key)
-        obs = self.observation(next_state) if k_obs is None else self._observe(next_state, k_obs)
+        obs = self._observe(next_state, z_obs)
         info = {
             "final_observation": obs,
             "control": u,
@@ -311,10 +310,22 @@ class Env:
         }
         return obs, next_state, -cost, terminated, truncated, info
 
-    def _advance(self, state: EnvState, u: Any, p: Any, key: Any) -> tuple[Any, Any]:
+    def _normals(self, state: EnvState) -> tuple[Any, Any, Any]:
+        """(the next noise key, (substeps, n) normals of the Wiener increments or None, (n,) normals of the
+        observation noise or None): one split and one draw a step (the key stream costs more than the step)."""
+        if state.key is None:
+            return None, None, None
+        n, s, dtype = self.system.n_states, self.options.substeps, state.x.dtype
+        n_dw = s * n if self.process_sigma is not None else 0
+        n_obs = n if self.observation_std is not None else 0
+        key, sub = jax.random.split(state.key)
+        z = jax.random.normal(sub, (n_dw + n_obs,), dtype)
+        return key, (z[:n_dw].reshape(s, n) if n_dw else None), (z[n_dw:] if n_obs else None)
+
+    def _advance(self, state: EnvState, u: Any, p: Any, z: Any) -> tuple[Any, Any]:
         """(x_{k+1}, the running cost over the step): ``substeps`` steps of the integrator (with process noise, of
-        its stochastic scheme, the Wiener increments drawn from ``key``) on the state and the cost as one more
-        state, which carries no noise."""
+        its stochastic scheme, the Wiener increments sqrt(h) z, z (substeps, n) standard normals) on the state and
+        the cost as one more state, which carries no noise."""
         opts, system = self.options, self.system
         x = state.x
         dtype = x.dtype
@@ -328,7 +339,7 @@ class Env:
         sigma, scheme = self.process_sigma, self.sde_scheme
         if sigma is not None:
             sigma = jnp.append(jnp.asarray(sigma, dtype), jnp.zeros((1,), dtype))
-            dw = jnp.concatenate([increments(key, s, n, h, dtype), jnp.zeros((s, 1), dtype)], axis=1)
+            dw = jnp.concatenate([jnp.sqrt(jnp.asarray(h, dtype)) * z, jnp.zeros((s, 1), dtype)], axis=1)
 
         def substep(j, y):
             # t = (k s + j) h, not a running sum: the times of rollout_with_cost exactly (the consistency test).
