@@ -127,7 +127,7 @@ def test_a_real_row_and_bc_from_dagger_is_bc(tmp_path):
     assert b["optimum"]["score"] == 100.0 and b["optimum"]["agreement"] <= b["optimum"]["tolerance"]
     assert b["mpc"]["score"] > 99.0
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "| Simple Case | optimum | 100 by definition" in (tmp_path / "t.md").read_text()
+    assert "| Simple Case | optimum | 100 by definition: J* = -1.3543487;" in (tmp_path / "t.md").read_text()
 
 
 def test_a_method_that_does_not_apply_is_said_so_not_scored(tmp_path):
