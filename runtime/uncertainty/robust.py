@@ -217,8 +217,9 @@ def _functions(base: NLP, layout: Layout, objective: str, alpha: float | None) -
         times, states, controls = jax.vmap(lambda x, d: base.unravel(layout.member(u, x), d))(X, data)
         return times[0], states, controls[0]
 
+    # The guess is jitted: solvers call it eagerly, where its vmapped evaluation would compile each primitive apart.
     return dict(objective=lambda w, data: fused(w, data)[0], constraints=lambda w, data: fused(w, data)[1],
-                objective_and_constraints=fused, initial_guess=initial_guess, unravel=unravel)
+                objective_and_constraints=fused, initial_guess=jax.jit(initial_guess), unravel=unravel)
 
 
 def _sparsity(base: NLP, layout: Layout, objective: str) -> tuple[np.ndarray, np.ndarray] | None:
