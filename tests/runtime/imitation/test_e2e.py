@@ -127,3 +127,15 @@ def test_the_e2e_settings_are_flags_of_the_command():
     assert config.e2e == dataclasses.replace(E2E.e2e, iterations=7, optimizer=0.05) and config.start_noise == 0.0
     assert isinstance(config.e2e, E2EConfig)  # the kit's configuration, checked by it:
     assert cli.main(["imitate", "cancer_treatment", "--method", "e2e", "--set", "e2e.loss=plans"]) == 2
+
+
+@pytest.mark.slow
+def test_a_dataset_whose_episodes_start_elsewhere_is_refused_before_any_learning(tmp_path, capsys):
+    from myriad.runtime.datasets import Perturbation, collect
+    from myriad.runtime.datasets.storage import write_dataset
+
+    episodes = collect("cancer_treatment", "optimal", episodes=2, seed=0, perturb=Perturbation(start=0.1))
+    path = str(write_dataset(episodes, tmp_path / "data", fmt="npz"))
+    assert main(["imitate", "cancer_treatment", "--method", "e2e", "--dataset", path, "--demos", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"--dataset {path}" in err and "spec's x0" in err and "--start-noise 0" in err
