@@ -5,6 +5,7 @@ seeds reproduce bits); every option off is the deterministic env to the bit."""
 
 import math
 
+import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -164,6 +165,11 @@ def test_a_randomised_noisy_env_passes_the_gymnasium_checker_and_seeds_reproduce
         runs.append(out)
     assert runs[0] == runs[1] and runs[0] != runs[2]
     assert set(info["params"]) == {"k", "c", "g", "m"} and env.episode_params["k"] == info["params"]["k"]
+    wrapped = gymnasium.make(env.spec.id, steps=20, widen=2.0)  # the passive checker on; an option as a keyword
+    wrapped.reset(seed=0)
+    for _ in range(20):
+        wrapped.step(wrapped.action_space.sample())
+    assert wrapped.unwrapped.core.options.widen == 2.0
     for i in range(5):
         env.reset(seed=10 + i)
     assert _single(env.core)[0]._cache_size() == 1 and _single(env.core)[1]._cache_size() == 1
