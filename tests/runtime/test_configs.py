@@ -40,7 +40,8 @@ COMMANDS = {
     "solve": (SolveConfig, ["solve", "van_der_pol"], _solve_config, {
         "transcription": "multiple_shooting", "solver": "ipopt", "integrator": "rk4", "intervals": "20",
         "solver_options": '{"max_iter": 5}', "tolerance": "1e-5", "max_refinements": ("3", None, ["--tolerance", "1"]),
-        "max_intervals": ("500", None, ["--tolerance", "1"]), "x0_std": "0.1", "seed": "3", "resimulate": "false"}),
+        "max_intervals": ("500", None, ["--tolerance", "1"]), "x0_std": "0.1", "seed": "3", "resimulate": "false",
+        "nominal": "true"}),
     "sysid": (SysidConfig, ["sysid", "van_der_pol"], sysid_config, {
         "model": "node", "method": "adam", "trajectories": "5", "rounds": "2", "noise": "0.01", "seed": "3",
         "hidden": ("[8, 8]", ["--hidden", "8", "8"], []), "activation": "relu", "fit": '{"epochs": 5}',
