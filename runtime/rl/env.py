@@ -33,7 +33,7 @@ from ..transcriptions.nominal_scales import state_scale
 from ..uncertainty.distributions import draw, uncertain_spec, with_values
 from ..uncertainty.sde import SDEScheme, for_integrator
 
-__all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play"]
+__all__ = ["DEFAULT_ACTION_BOUNDS", "EnvOptions", "EnvState", "Env", "Episode", "make_jax", "play", "expected_cost"]
 
 # Where ``action_bound`` is not given, a shipped unbounded control's: twice its optimal control's largest magnitude,
 # rounded up, so the optimum is inside the action space with room past it (README.md: action bounds).
@@ -409,3 +409,21 @@ def play(env: Env, actions: Any, params: ProblemData, key: Any = None) -> Episod
 
     _, (rewards, xs) = jax.lax.scan(body, state0, jnp.asarray(actions))
     return Episode(rewards=rewards, states=jnp.concatenate([state0.x[None], xs]), total=jnp.sum(rewards))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _costs(env: Env, actions: Any, params: ProblemData, episodes: int, key: Any) -> Any:
+    return jax.vmap(lambda k: play(env, actions, params, k).cost)(jax.random.split(key, episodes))
+
+
+def expected_cost(env: Env, actions: Any, params: ProblemData | None = None, episodes: int = 1000,
+                  seed: int = 0) -> tuple[float, float]:
+    """Monte Carlo of the expected cost E J = -E return of open-loop ``actions`` (K, m) under the env's uncertainty
+    (drawn parameters, process and observation noise, random starts): ``(mean, standard error)`` over ``episodes``
+    episodes, each from its own reset key (``jax.random.split(PRNGKey(seed), episodes)``), one vmapped program.
+    A deterministic env's episodes are all alike (a standard error of rounding only)."""
+    if episodes < 2:
+        raise ValueError(f"expected_cost: episodes must be at least 2 for a standard error, got {episodes}")
+    params = env.default_params() if params is None else params
+    costs = np.asarray(_costs(env, jnp.asarray(actions), params, episodes, jax.random.PRNGKey(seed)), np.float64)
+    return float(costs.mean()), float(costs.std(ddof=1) / np.sqrt(episodes))

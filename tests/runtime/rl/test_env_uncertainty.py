@@ -14,7 +14,7 @@ from gymnasium.utils.env_checker import check_env
 
 import myriad.runtime.rl as rl
 from myriad.runtime.rl import Env, EnvOptions, play
-from myriad.runtime.rl.env import EnvState
+from myriad.runtime.rl.env import EnvState, expected_cost
 from myriad.runtime.rl.gym import MyriadEnv, MyriadVectorEnv, _single
 
 from ..uncertainty._systems import (
@@ -184,3 +184,13 @@ def test_the_vector_env_draws_per_env_and_reproduces_with_its_seed():
     assert k.shape == (4,) and len(set(k.tolist())) == 4 and np.array_equal(envs.episode_params["k"], k)
     assert MyriadEnv(plain("four_parameters")).reset(seed=0)[1] == {}  # nothing drawn: no params in info
     assert math.isfinite(float(envs.step(np.zeros((4, 1)))[1][0]))
+
+
+def test_expected_cost_is_the_closed_form_within_its_standard_error():
+    # Zero control on the Ornstein-Uhlenbeck env: J = int_0^1 x^2 dt, E x(t)^2 = e^(-4t) + (1 - e^(-4t)) / 4, so
+    # E J = 3 (1 - e^-4) / 16 + 1 / 4 (Heun's quadrature on 100 steps is off by ~1e-5, far inside the error)
+    env = Env(ornstein_uhlenbeck(), EnvOptions(steps=100))
+    mean, se = expected_cost(env, np.zeros((100, 1)), episodes=20_000, seed=3)
+    exact = 3 * -math.expm1(-4.0) / 16 + 0.25
+    assert abs(mean - exact) <= 3 * se and 0 < se < 5e-3
+    assert expected_cost(Env(plain("ornstein_uhlenbeck"), EnvOptions(steps=10)), np.zeros((10, 1)))[1] < 1e-15
