@@ -13,7 +13,8 @@ import sys
 __all__ = ["add_parser", "run"]
 
 # Not part of the control problem a reference cost measures (reference.reference_env): no flags of their own.
-_NOT_IN_THE_KEY = ("normalize_actions", "max_steps", "start_noise")
+_NOT_IN_THE_KEY = ("normalize_actions", "max_steps", "start_noise", "randomize", "widen", "process_noise_scale",
+                   "observation_noise_scale")
 
 
 def add_parser(sub) -> None:

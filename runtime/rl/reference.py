@@ -49,11 +49,13 @@ def _system(target: System | str | os.PathLike) -> System:
 
 def reference_env(system: System | str, options: EnvOptions | None = None) -> Env:
     """The environment the scores are measured in: ``options`` (default :class:`EnvOptions`) with controls in their
-    own units, whole episodes (no ``max_steps``) from x0 exactly (no ``start_noise``): those three do not change
-    the control problem an episode's cost J measures, so they are not part of a record's key."""
+    own units, whole episodes (no ``max_steps``) from x0 exactly (no ``start_noise``), and the nominal problem of a
+    schema 3 spec (no draw of its uncertain parameters, no process or observation noise): the scores normalise
+    against the nominal optimum, so none of these is part of a record's key."""
     options = EnvOptions() if options is None else options
     return Env(_system(system), dataclasses.replace(options, normalize_actions=False, max_steps=None,
-                                                    start_noise=0.0))
+                                                    start_noise=0.0, randomize=False, process_noise_scale=0.0,
+                                                    observation_noise_scale=0.0))
 
 
 def _control_batch(env: Env, optimal: np.ndarray | None) -> jnp.ndarray:

@@ -172,3 +172,13 @@ def test_a_disagreement_beyond_the_tolerance_is_an_error(solved, monkeypatch):
     monkeypatch.setattr(optimum, "_solve", interior_point_off_by_1e_5)
     with pytest.raises(CertificationError, match="disagree"):
         reference.compute(spec)
+
+
+def test_a_schema_3_specs_reference_env_is_its_nominal_problem():
+    """Scores normalise against the nominal optimum: the reference env neither draws the uncertain parameters nor
+    adds noise, whatever the options ask, and those options are not part of the key."""
+    spec = Path(__file__).parents[3] / "tests" / "compiler" / "schema3" / "uncertain_oscillator.yaml"
+    asked = EnvOptions(widen=2.0, process_noise_scale=3.0, observation_noise_scale=3.0)
+    env = reference.reference_env(spec, asked)
+    assert not env.randomized and env.process_sigma is None and env.observation_std is None
+    assert reference.cache_key(spec, asked) == reference.cache_key(spec)
