@@ -78,6 +78,9 @@ def run(args) -> int:
                 check_starts(system, episodes.observations[: config.demos], f"--dataset {args.dataset}")
             except ValueError as exc:
                 return usage("imitate", str(exc))
+            if episodes.actions.shape[1] != reference_env(system).options.steps:  # the plan is scored on its grid
+                return usage("imitate", f"--dataset {args.dataset}: episodes of {episodes.actions.shape[1]} steps; "
+                                        f"--method e2e needs the env's own {reference_env(system).options.steps}")
     from .run import run_imitation
 
     report = run_imitation(system, config, dataset=args.dataset, checkpoint_dir=args.checkpoint, resume=args.resume)

@@ -130,12 +130,17 @@ def test_the_e2e_settings_are_flags_of_the_command():
 
 
 @pytest.mark.slow
-def test_a_dataset_whose_episodes_start_elsewhere_is_refused_before_any_learning(tmp_path, capsys):
+def test_a_dataset_starting_elsewhere_or_on_another_grid_is_refused_before_any_learning(tmp_path, capsys):
     from myriad.runtime.datasets import Perturbation, collect
     from myriad.runtime.datasets.storage import write_dataset
+    from myriad.runtime.rl.env import EnvOptions
 
     episodes = collect("cancer_treatment", "optimal", episodes=2, seed=0, perturb=Perturbation(start=0.1))
     path = str(write_dataset(episodes, tmp_path / "data", fmt="npz"))
     assert main(["imitate", "cancer_treatment", "--method", "e2e", "--dataset", path, "--demos", "2"]) == 2
     err = capsys.readouterr().err
     assert f"--dataset {path}" in err and "spec's x0" in err and "--start-noise 0" in err
+    coarse = collect("cancer_treatment", "optimal", episodes=1, seed=0, options=EnvOptions(steps=50))
+    path = str(write_dataset(coarse, tmp_path / "coarse", fmt="npz"))  # the plan is scored on the env's 100 steps
+    assert main(["imitate", "cancer_treatment", "--method", "e2e", "--dataset", path, "--demos", "1"]) == 2
+    assert "episodes of 50 steps" in capsys.readouterr().err
