@@ -39,7 +39,8 @@ TIGHT = Ipopt(tol=1e-12)
 
 # J_s = J0 + T c_s whatever the control (c enters the running cost alone), so every robust objective has a closed
 # form: with c in {0, 1, 3} and T = 2, mean J0 + 8/3, worst J0 + 6, CVaR_1/2 J0 + 14/3 (the worst half of the mass:
-# 3 with weight 1/3 and 1 with weight 1/6, over 1/2). The same problem as tests/compiler/test_schema3.py's.
+# 3 with weight 1/3 and 1 with weight 1/6, over 1/2). tests/compiler/test_schema3.py's problem with a path row
+# (convex: one optimum).
 ADDITIVE = """\
 schema: 3
 name: additive
@@ -56,8 +57,39 @@ dynamics:
 cost:
   sense: minimize
   running: x**2 + u**2 + c
+path_constraints:
+  floor: {expression: x, bounds: [0.5, .inf], description: active from t ~ 0.5 on}
 horizon: 2
 scenarios: [{c: 0.0}, {c: 1.0}, {c: 3.0}]
+"""
+
+
+# A free final time with an uncertain weight that no state depends on: every scenario's states are the same, so the
+# worst-case plan is the nominal one at w = 3 and the mean plan the nominal one at w = 2 (the cost is linear in w),
+# on every transcription. The force never reaches its bounds: min T + w int u^2 is smooth with one optimum
+# (continuous: T* = (36 w)^(1/4)); with a bang-bang control (w = 0.1, |u| <= 1) single shooting's worst-case plan
+# stopped at another KKT point (2.766146 against 2.766138), as trapezoidal's mean plan did under a speed limit.
+FREE_TIME = """\
+schema: 3
+name: free_time_weights
+title: Free time, uncertain weight
+description: Minimum time plus an uncertain weight on the force.
+parameters:
+  w: {value: 2.0, uncertain: {choice: [1.0, 3.0]}}
+states:
+  x1: {initial: 0, final: 1}
+  x2: {initial: 0, final: 0}
+controls:
+  u: {bounds: [-10, 10]}
+dynamics:
+  x1: x2
+  x2: u
+cost:
+  sense: minimize
+  running: 1 + w*u**2
+horizon: {free: true, guess: 2.5, bounds: [0.1, 10]}
+scenarios: [{w: 1.0}, {w: 3.0}]
+robust: {objective: worst}
 """
 
 
@@ -126,6 +158,25 @@ def test_additive_closed_forms(additive):
         assert sol.converged, (objective, sol.message)
         assert sol.cost == pytest.approx(J0 + offset, abs=1e-8), objective
         assert [s["cost"] for s in sol.robust["scenarios"]] == pytest.approx([J0, J0 + 2, J0 + 6], abs=1e-8)
+        assert sol.path_violation <= 1e-8 and sol.scenario_states[:, :, 0].min() >= 0.5 - 1e-8
+
+
+@pytest.mark.slow  # a forward-mode Jacobian compiled for each of eight NLPs
+def test_the_jacobian_pattern_covers_every_nonzero(additive):
+    """At a random point, every non-zero of the scenario NLP's Jacobian (forward mode) lies in its pattern, on every
+    transcription, with path rows; mean (the transcription's rows alone) and CVaR (its epigraph rows read t and
+    xi_s: worst's read t alone)."""
+    data = R.scenario_batch(additive)
+    rng = np.random.default_rng(0)
+    for cls in TRANSCRIPTIONS.values():
+        for objective, alpha in (("mean", None), ("cvar", 0.5)):
+            nlp = R.scenario_nlp(additive, cls.on_grid(5), 3, objective, alpha)
+            w = np.asarray(nlp.initial_guess(data)) + 0.1 * rng.standard_normal(nlp.n_variables)
+            jac = np.asarray(jax.jacfwd(nlp.constraints)(w, data))
+            pattern = np.ones(jac.shape, bool) if nlp.jacobian_sparsity is None else np.zeros(jac.shape, bool)
+            if nlp.jacobian_sparsity is not None:
+                pattern[nlp.jacobian_sparsity] = True
+            assert not np.any((jac != 0) & ~pattern), (cls.label, objective)
 
 
 @pytest.mark.slow  # three IPOPT solves of each side (~15 s on a loaded 2-core machine)
@@ -176,6 +227,24 @@ def test_the_robust_plan_beats_the_nominal_one_out_of_sample():
     print(f"expected cost: robust {r.mean():.6f} +- {r.std(ddof=1) / math.sqrt(r.size):.1e}, nominal "
           f"{n.mean():.6f} +- {n.std(ddof=1) / math.sqrt(n.size):.1e}, paired difference {diff.mean():.2e} +- {se:.1e}")
     assert diff.mean() <= 0.0
+
+
+@pytest.mark.slow  # three solves on each of the four transcriptions
+def test_a_free_final_time_on_every_transcription(tmp_path):
+    path = tmp_path / "free_time_weights.yaml"
+    path.write_text(FREE_TIME, encoding="utf-8")
+    system = load(path)
+    for cls in TRANSCRIPTIONS.values():
+        tr = cls.on_grid(20)
+        worst = solve(system, tr, TIGHT, resimulate=False)
+        mean = R.solve_robust(system, tr, TIGHT, objective="mean", resimulate=False)
+        at_three = solve(system, tr, TIGHT, params={"w": 3.0}, nominal=True, resimulate=False)
+        nominal = solve(system, tr, TIGHT, nominal=True, resimulate=False)  # w = 2, the mean of the scenarios
+        assert worst.converged and mean.converged, tr.label
+        assert worst.cost == pytest.approx(at_three.cost, abs=1e-8), tr.label
+        assert worst.final_time == pytest.approx(at_three.final_time, abs=1e-6), tr.label
+        assert mean.cost == pytest.approx(nominal.cost, abs=1e-8), tr.label
+        assert worst.final_time == pytest.approx(108 ** 0.25, rel=2e-2), tr.label  # the continuous T*, w = 3
 
 
 class CompileCounter:
