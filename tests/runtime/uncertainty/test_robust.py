@@ -152,13 +152,19 @@ def test_the_shared_entries_are_the_controls():
 def test_additive_closed_forms(additive):
     """mean, worst and CVaR of J0 + 2 c_s (module comment), and each scenario's cost, on trapezoidal collocation."""
     tr = Trapezoidal(intervals=20)
-    J0 = solve(additive, tr, TIGHT, params={"c": 0.0}, resimulate=False, nominal=True).cost
+    nominal = solve(additive, tr, TIGHT, params={"c": 0.0}, resimulate=False, nominal=True)
+    J0 = nominal.cost
     for objective, alpha, offset in (("mean", None, 8 / 3), ("worst", None, 6.0), ("cvar", 0.5, 14 / 3)):
         sol = R.solve_robust(additive, tr, TIGHT, objective=objective, alpha=alpha, resimulate=False)
         assert sol.converged, (objective, sol.message)
         assert sol.cost == pytest.approx(J0 + offset, abs=1e-8), objective
         assert [s["cost"] for s in sol.robust["scenarios"]] == pytest.approx([J0, J0 + 2, J0 + 6], abs=1e-8)
         assert sol.path_violation <= 1e-8 and sol.scenario_states[:, :, 0].min() >= 0.5 - 1e-8
+    # A start in the transcription's variables (the nominal plan) is copied to every scenario.
+    z0 = tr.sample(additive, lambda t: np.interp(t, nominal.times, nominal.states[:, 0])[:, None],
+                   lambda t: np.interp(t, nominal.times, nominal.controls[:, 0])[:, None])
+    warm = R.solve_robust(additive, tr, TIGHT, objective="cvar", alpha=0.5, z0=z0, resimulate=False)
+    assert warm.converged and warm.cost == pytest.approx(J0 + 14 / 3, abs=1e-8)
 
 
 @pytest.mark.slow  # a forward-mode Jacobian compiled for each of eight NLPs
