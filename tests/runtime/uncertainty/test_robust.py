@@ -350,6 +350,8 @@ def test_refusals():
         solve(system, Trapezoidal(intervals=8), tolerance=1e-4)
     with pytest.raises(ValueError, match=r"params: k is uncertain.*nominal=True"):
         solve(system, Trapezoidal(intervals=8), params={"k": 2.1})
+    with pytest.raises(ValueError, match="no stage-wise derivatives"):  # the interior point's dense step only
+        solve(system, SingleShooting(intervals=8), InteriorPoint(kkt="riccati"), resimulate=False)
     assert SolveConfig(nominal=True).nominal and not SolveConfig().nominal
     with pytest.raises(ValueError, match="nominal must be true or false"):
         SolveConfig(nominal="yes")
