@@ -36,6 +36,7 @@ from ..compilation import program_key
 from ..data import ProblemData, batch_data, default_data
 from ..nlp import NLP, evaluation
 from ..solution import AGREEMENT_TOLERANCE, Solution, resimulate, state_magnitudes
+from ..solvers import Ipopt
 from ..solvers.base import unstack
 from ..system import System
 from ..transcriptions.base import AbstractTranscription, _trajectories, path_violation, transcribe
@@ -292,12 +293,11 @@ def solve_robust(system: System, transcription: Any, solver: Any = None, *, para
                          f"stack over scenarios: choose a direct one, or solve the nominal problem (--nominal)")
     if objective is None:
         objective, alpha = robust_objective(system)
+    _check_objective(objective, alpha)
     data = scenario_batch(system, params, x0, values)
     S = int(np.shape(data.x0)[0])
     nlp = scenario_nlp(system, transcription, S, objective, None if objective != "cvar" else float(alpha))
-    from ..solvers import Ipopt  # the default, as for a nominal solve
-
-    solver = Ipopt() if solver is None else solver
+    solver = Ipopt() if solver is None else solver  # the default, as for a nominal solve
     res = solver.solve(nlp, data, _start(system, transcription, nlp, data, objective, z0))
     sol = _solution(system, transcription, solver, nlp, res, data, objective, alpha)
     return with_robust_resimulation(system, sol, data, default_data(system, params, x0)) if resimulate else sol
