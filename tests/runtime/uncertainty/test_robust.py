@@ -205,6 +205,21 @@ def test_objectives_agree_with_casadis_scenario_problem():
         np.testing.assert_allclose(sol.controls[:, 0], np.asarray(ref.value(problem.U)).ravel(), atol=1e-4)
 
 
+@pytest.mark.slow  # five solves
+def test_the_plans_cost_no_less_than_each_scenarios_own_optimum():
+    """One control for all scenarios can do no better than each scenario's own optimal control (the wait-and-see
+    bound): each scenario cost of a plan >= that scenario's optimum, so mean >= their mean and worst >= their max;
+    strictly here, since the scenarios' optimal controls differ."""
+    system, tr = oscillator(), Trapezoidal(intervals=20)
+    own = [solve(system, tr, TIGHT, params={"k": k, "c": c}, nominal=True, resimulate=False).cost
+           for k, c in system.scenarios]
+    for objective, bound in (("mean", np.mean(own)), ("worst", max(own))):
+        sol = R.solve_robust(system, tr, TIGHT, objective=objective, resimulate=False)
+        costs = [s["cost"] for s in sol.robust["scenarios"]]
+        assert all(J >= J_own - 1e-9 for J, J_own in zip(costs, own)), (objective, costs, own)
+        assert sol.cost > bound + 1e-4, (objective, sol.cost, bound)
+
+
 def expected_costs(system, controls, draws):
     """Each plan's cost (RK4 on its grid) in every drawn parameter set, one vmapped program."""
     names = D.uncertain_spec(system)[0]
