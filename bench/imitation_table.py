@@ -37,6 +37,7 @@ import json
 import os
 import sys
 import time
+import traceback
 from datetime import datetime, timezone
 
 if not __package__:  # run as a file (`python bench/NAME.py`): run as the module, `python -m bench.NAME`
@@ -162,6 +163,8 @@ def bc_from_dagger(record: dict) -> dict:
     """BC's row from a DAgger record: its iteration 0 is the behaviour-cloning policy's nominal env cost J."""
     from myriad.runtime.rl.reference import normalized_score
 
+    if not record["dagger_history"]:  # the fit failed, so DAgger never started: the record is BC's own
+        return {**_row(record, "bc", sum(record["seconds"].values())), "status": record["status"]}
     _, _, cost = record["dagger_history"][0]
     parts = {k: record["seconds"][k] for k in ("demonstrations", "bc")}
     row = _row(record, "bc", sum(parts.values()))
@@ -275,11 +278,13 @@ def run_table(args, values: dict, results: Results, methods: list[str], runner=r
                     results.save()
             else:
                 todo_methods = pending(results, job, methods, args)
-                if "bc" in todo_methods and "dagger" in methods and "dagger" not in todo_methods:
-                    todo_methods = [m for m in todo_methods if m != "bc"] + ["bc"]  # DAgger done: BC on its own
-                    rows = runner(system, demos, seed, todo_methods, values, separate_bc=True)
-                else:
-                    rows = runner(system, demos, seed, todo_methods, values, separate_bc=args.separate_bc)
+                separate = args.separate_bc or ("bc" in todo_methods and "dagger" not in todo_methods)
+                try:
+                    rows = runner(system, demos, seed, todo_methods, values, separate_bc=separate)
+                except Exception as exc:  # noqa: BLE001 -- one run's crash is its rows' failure, not the table's
+                    traceback.print_exc()
+                    rows = [{**refused(system, m, demos, seed, f"{type(exc).__name__}: {exc}"), "status": "error"}
+                            for m in todo_methods]
                 results.add(*rows)
             meter.update(f"{system} {kind}{'' if demos is None else f' {demos} demos seed {seed}'} "
                          f"{time.perf_counter() - t:.0f} s")

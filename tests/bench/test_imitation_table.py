@@ -47,7 +47,7 @@ def test_summarise_leaves_failed_runs_out_and_counts_them():
     assert te.summarise([[None]]) == {"iqm": None, "ci": None, "runs": 1, "finite": 0}
 
 
-class Killed(Exception):
+class Killed(KeyboardInterrupt):  # a kill (Ctrl-C, as SIGTERM ends a process) is no Exception: never a failed row
     pass
 
 
@@ -138,3 +138,25 @@ def test_a_method_that_does_not_apply_is_said_so_not_scored(tmp_path):
     assert agg["per"]["simple_case|e2e|1"]["refused"] == why and "e2e|1" not in agg["overall"]
     text = te.markdown(results, ["simple_case"], ["e2e"], [1], {"simple_case": "Simple Case"})
     assert "| | e2e | does not apply (no learnable parameters) |" in text
+
+
+def test_a_failed_fit_and_a_crashed_run_are_failed_rows_not_a_dead_table(tmp_path):
+    # A failed behaviour-cloning fit: DAgger never starts, so its record (no history) is BC's own.
+    record = {"system": "bacteria", "method": "dagger", "demos": 10, "seed": 1, "normalized_score": None,
+              "episode_return": None, "status": "non_finite", "seconds": {"demonstrations": 1.0, "bc": 2.0},
+              "dagger_history": []}
+    row = te.bc_from_dagger(record)
+    assert (row["method"], row["status"], row["normalized_score"], row["seconds"]) == ("bc", "non_finite", None, 3.0)
+
+    def crash(system, demos, seed, methods, values, separate_bc=False):
+        raise RuntimeError("boom")
+
+    args = te.parse(["--systems", "simple_case", "--demos", "1", "--seeds", "0", "--methods", "bc", "dagger"])
+    results = te.Results(str(tmp_path / "t.json"), {})
+    results.baseline("simple_case").update(mpc={"score": 99.5, "seconds": 1.0}, ppo={"status": "not installed"},
+                                           optimum={"cost": -1.35, "agreement": 0.0, "tolerance": 1e-6})
+    te.run_table(args, {}, results, ["bc", "dagger"], runner=crash, progress=False)
+    rows = results.data["rows"]
+    assert [(r["method"], r["status"], r["message"]) for r in rows] == [("bc", "error", "RuntimeError: boom"),
+                                                                         ("dagger", "error", "RuntimeError: boom")]
+    assert "failed (1 runs)" in te.markdown(results, ["simple_case"], ["bc", "dagger"], [1], {"simple_case": "S"})
