@@ -153,7 +153,7 @@ def e2e_available() -> bool:
 def _row(record: dict, method: str, wall: float) -> dict:
     return {"system": record["system"], "method": method, "demos": record["demos"], "seed": record["seed"],
             "normalized_score": record["normalized_score"], "episode_return": record["episode_return"],
-            "status": record["status"], "seconds": wall, "parts": record["seconds"],
+            "status": record["status"], "message": record.get("message"), "seconds": wall, "parts": record["seconds"],
             "mismatch": (record.get("mismatch") or {}).get("normalized_score"),
             "noise": (record.get("noise") or {}).get("normalized_score"),
             "expert_labels": record.get("expert_labels"), "expert_failures": record.get("expert_failures")}
