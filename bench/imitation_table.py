@@ -413,7 +413,7 @@ def plot(results: Results, systems: list[str], methods: list[str], demos: list[i
         for i, method in enumerate(methods):
             key = (lambda d: f"{method}|{d}") if panel == "all" else (lambda d: f"{panel}|{method}|{d}")
             src = agg["overall"] if panel == "all" else agg["per"]
-            pts = [(d, src[key(d)]) for d in demos if src.get(key(d)) and src[key(d)]["iqm"] is not None]
+            pts = [(d, src[key(d)]) for d in demos if (src.get(key(d)) or {}).get("iqm") is not None]
             if pts:
                 x = np.array([d for d, _ in pts]) * (1 + 0.04 * (i - 1))  # side by side, not on top of each other
                 y = np.array([s["iqm"] for _, s in pts])
