@@ -71,7 +71,7 @@ _COMMANDS = {
     "rl-reference": "reference scores of any spec (certified optimum, zero control, random); regenerate or check the "
                     "shipped ones",
     "dataset": "an offline dataset (Minari) of a policy's episodes in a system's env",
-    "imitate": "imitation baselines: behaviour cloning or DAgger from optimal demonstrations",
+    "imitate": "imitation baselines: behaviour cloning, DAgger or end-to-end learning from optimal demonstrations",
     "bench": "the reference table (published setting + best over transcriptions)",
 }
 # The package commands -> their package.

@@ -324,7 +324,9 @@ def test_sixty_four_scenarios_compile_as_many_programs_as_two():
         assert sorted(n for n in counter.names if n in PROGRAMS) == sorted(PROGRAMS), (S, counter.names)
     assert sols[64].converged and len(sols[64].robust["scenarios"]) == 64
     assert sols[64].scenario_states.shape == (64, 9, 2)
-    assert abs(counts[64] - counts[2]) <= 2 and counts[64] <= 25, counts  # not 64 of anything
+    # Not 64 of anything: the named programs once each (above); besides them, a few eager operations whose shapes
+    # hold S compile anew at a new S (15 against 19 in a fresh process, 2 apart after other tests warmed them).
+    assert counts[64] - counts[2] <= 6 and counts[64] <= 25, counts
     with CompileCounter() as counter:  # and a second solve of the same shapes compiles nothing
         again = solve(_drawn(64), tr, solver, resimulate=False)
     assert counter.events == [] and again.cost == pytest.approx(sols[64].cost, rel=1e-12)
