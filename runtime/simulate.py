@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .compilation import CompiledFunction, program_key, programs
+from .compilation.caches import program_cache
 from .integrators import AbstractIntegrator, Heun, rollout_with_cost
 from .system import System
 
@@ -89,7 +90,7 @@ def simulate(
     return stored(*args)
 
 
-@functools.lru_cache(maxsize=256)
+@program_cache(maxsize=256)
 def _stored_fn(system: System, integrator: AbstractIntegrator, key: str):
     return CompiledFunction(lambda controls, p, x0: _simulate(system, integrator, controls, p, x0), key)
 

@@ -2,6 +2,8 @@
 
 import os
 
+import pytest
+
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 # Threaded OpenBLAS inside SciPy's SLSQP thrashes a busy 2-core machine (175 s instead of 1.4 s measured).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -24,3 +26,14 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Empty the runtime's and JAX's program caches after each test file. A worker goes through hundreds of problems;
+    kept, their programs' machine code reached Linux's 65,530 memory mappings per process (vm.max_map_count) near the
+    end of `make test`, and XLA then crashed the worker (runtime/compilation/caches.py)."""
+    yield
+    from myriad.runtime.compilation.caches import clear_caches
+
+    clear_caches()

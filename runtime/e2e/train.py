@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.caches import on_clear
 from ..learn import loop
 from ..learn.checkpoint import load_checkpoint, save_checkpoint
 from ..learn.evaluate import Evaluation, evaluate
@@ -307,6 +308,7 @@ def _report(system: System, model: Any, config: E2EConfig, run: _Imitation, true
 
 
 _PROGRAMS: dict = {}
+on_clear(_PROGRAMS.clear)
 
 
 def _program(model, nlp, config, expert) -> Program:

@@ -11,7 +11,6 @@ end: README.md in this folder.
 
 from __future__ import annotations
 
-import functools
 import os
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from ..compilation.caches import program_cache
 from ..data import batch_data
 from ..loader import load
 from ..system import System
@@ -59,7 +59,7 @@ _SCALARS = ("reward", "terminated", "truncated", "running_cost", "penalty", "bou
 
 
 # One compiled program per (system, options), shared by every env instance (gymnasium.make, check_env's remakes).
-@functools.cache
+@program_cache(maxsize=None)
 def _single(env: Env):
     def step(state, action, data):
         # Everything the step returns packed into one vector: one device-to-host copy per step, not eleven.
@@ -71,7 +71,7 @@ def _single(env: Env):
     return jax.jit(env.reset), jax.jit(step)
 
 
-@functools.cache
+@program_cache(maxsize=None)
 def _batched(env: Env):
     return jax.jit(jax.vmap(env.reset)), jax.jit(jax.vmap(env.step))
 

@@ -12,7 +12,6 @@ folder.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from typing import Any, Literal
 
@@ -20,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.caches import program_cache
 from ..data import ProblemData, check_structural_params
 from ..nlp import NLP
 from ..solvers import Ipopt
@@ -72,7 +72,7 @@ def mismatched_params(env: Env, fraction: float, seed: int = 0) -> dict[str, Any
     return {**p, **{n: p[n] * (1.0 + fraction * s) for n, s in zip(names, signs)}}
 
 
-@functools.cache
+@program_cache(maxsize=None)
 def _planning_nlp(model: Env, terminal: str) -> NLP:
     """The planning problem (README.md); data ``ProblemData({"model": p, "k": k, "prev": (N, m)}, x_k)``."""
     system = model.system

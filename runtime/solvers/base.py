@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.caches import on_clear
 from ..nlp import NLP, NLPResult, evaluation
 
 __all__ = [
@@ -212,6 +213,7 @@ def _canonical_leaf(x: Any) -> Any:
 
 
 _CACHE: "weakref.WeakKeyDictionary[NLP, dict[Hashable, Any]]" = weakref.WeakKeyDictionary()
+on_clear(_CACHE.clear)
 
 
 def cached(nlp: NLP, key: Hashable, build: Callable[[], T]) -> T:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import functools
 import math
 from typing import Any, Callable, ClassVar
 
@@ -13,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..compilation import CompiledFunction, program_key, programs
+from ..compilation.caches import program_cache
 from ..data import ProblemData
 from ..integrators import rollout, rollout_with_cost
 from ..method import AbstractMethod
@@ -277,7 +277,7 @@ class Transcribed:
         )
 
 
-@functools.lru_cache(maxsize=256)
+@program_cache(maxsize=256)
 def _path_violation_fn(system: System):
     lower = jnp.asarray(np.asarray(system.path_lower, dtype=np.float64))
     upper = jnp.asarray(np.asarray(system.path_upper, dtype=np.float64))
@@ -298,7 +298,7 @@ def path_violation(system: System, times, states, controls, params) -> float:
     return float(_path_violation_fn(system)(jnp.asarray(times), jnp.asarray(states), jnp.asarray(controls), params))
 
 
-@functools.lru_cache(maxsize=256)
+@program_cache(maxsize=256)
 def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
     """The NLP for (system, transcription), built once: solvers cache their compiled functions per NLP object.
 
@@ -309,7 +309,7 @@ def transcribe(system: System, transcription: AbstractTranscription) -> NLP:
     return nlp if key is None or nlp.key is not None else dataclasses.replace(nlp, key=key)
 
 
-@functools.lru_cache(maxsize=256)
+@program_cache(maxsize=256)
 def _trajectory(nlp: NLP, system: System, midpoints: bool, batched: bool = False) -> CompiledFunction:
     """``(z, data) ->`` the trajectory on the grid and its per-interval local errors, one program per NLP and shapes
     (an eager unravel would re-trace its scan on every solve). ``batched``: vmapped over a batch's members, one

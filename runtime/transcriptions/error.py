@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compilation.caches import program_cache
 from ..solution import state_magnitudes
 from ..system import System
 
@@ -100,7 +101,7 @@ def _errors_body(system: System, substeps: int):
     return errors
 
 
-@functools.lru_cache(maxsize=256)
+@program_cache(maxsize=256)
 def _local_errors_fn(system: System, midpoints: bool, substeps: int):
     # One jitted program per system and grid shape (jit's own cache); params are traced, so new parameters reuse it.
     return jax.jit(functools.partial(interval_errors, system, midpoints=midpoints, substeps=substeps))

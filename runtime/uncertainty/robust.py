@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..compilation import program_key
+from ..compilation.caches import program_cache
 from ..data import ProblemData, batch_data, default_data
 from ..nlp import NLP, evaluation
 from ..solution import AGREEMENT_TOLERANCE, Solution, resimulate, state_magnitudes
@@ -143,14 +144,14 @@ def shared_entries(system: System, transcription: AbstractTranscription) -> tupl
     return np.flatnonzero(moves), np.flatnonzero(~moves)
 
 
-@functools.lru_cache(maxsize=64)
+@program_cache(maxsize=64)
 def _layout(system: System, transcription: AbstractTranscription, scenarios: int, objective: str) -> Layout:
     shared, private = shared_entries(system, transcription)
     return Layout(transcribe(system, transcription).n_variables, shared, private, scenarios,
                   {"mean": 0, "worst": 1, "cvar": 1 + scenarios}[objective])
 
 
-@functools.lru_cache(maxsize=64)
+@program_cache(maxsize=64)
 def scenario_nlp(system: System, transcription: AbstractTranscription, scenarios: int, objective: str = "mean",
                  alpha: float | None = None) -> NLP:
     """The scenario NLP (module docstring) of ``scenarios`` scenarios; its ``data`` is a
@@ -320,7 +321,7 @@ def _start(system: System, transcription: AbstractTranscription, nlp: NLP, data:
     return np.concatenate([layout.stack(np.tile(z0, (S, 1))), np.asarray(extra, dtype=np.float64)])
 
 
-@functools.lru_cache(maxsize=64)
+@program_cache(maxsize=64)
 def _costs(base: NLP):
     """``(Z (S, n), data) -> (S,)`` the transcription's objective of each scenario, one program for all."""
     return jax.jit(jax.vmap(base.objective))
