@@ -33,7 +33,7 @@ from .base import (
     initial_point,
     unstack,
 )
-from .stepper import Stepper, queued
+from .stepper import Staged, Stepper, queued
 
 __all__ = ["AbstractPureSolver", "PureNLPSolver", "ScaledEvaluation"]
 
@@ -65,25 +65,78 @@ class ScaledEvaluation:
 
 class _Programs:
     """The jitted solve of one (problem, solver) pair: for callers, for one member, and for a batch (vmapped, or
-    mapped: ``strategy``; spread over the default backend's ``devices`` when there are several)."""
+    mapped: ``strategy``; spread over the default backend's ``devices`` when there are several). With ``staged``
+    (and ``staged_batch``), one member and a batch run in two programs, the second compiled at its first need
+    (:class:`_TwoStage`); callers' ``jitted`` solve stays one program."""
 
     def __init__(self, raw: Callable[[Any, Any], Any], key: str | None = None, strategy: str = "vmap",
                  raw_batch: Callable[[Any, Any], Any] | None = None, chunk: int | None = None,
-                 stepper: Stepper | None = None):
+                 stepper: Stepper | None = None, staged: Staged | None = None, staged_batch: Staged | None = None):
         self.jitted = jax.jit(raw)
-        self.single = CompiledFunction(raw, program_key(key, "single"))
+        self.single = _TwoStage.of(raw, key, "single", staged)
         member = raw if raw_batch is None else raw_batch
-        if strategy != "vmap":
-            batched = lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0))  # noqa: E731
-        elif stepper is not None and chunk is not None:
-            batched, strategy = queued(stepper, chunk), "queue"
-        else:
-            batched = _vmapped_in_chunks(member, chunk)
         # A program for several devices is not kept in the program store: an exported one can only be called with
         # its inputs already placed on those devices (the host's arrays are not).
         devices = jax.devices()
-        self.batched = CompiledFunction(_across(batched, devices),
-                                        program_key(key, f"batched:{strategy}:{chunk}") if len(devices) < 2 else None)
+        store = len(devices) < 2
+        if staged_batch is None:
+            batched, label = _batched(member, strategy, chunk, stepper)
+            self.batched = _TwoStage(CompiledFunction(_across(batched, devices),
+                                                      program_key(key, f"batched:{label}:{chunk}") if store else None))
+            return
+        first, label = _batched(staged_batch.first.solve, strategy, chunk, staged_batch.first if stepper else None)
+        # The rest runs few members: all in place, each chunk's loop only as long as its members need.
+        rest, _ = _batched(staged_batch.rest.solve, strategy, chunk, None)
+        keys = [program_key(key, f"batched:{label}:{chunk}:{part}") if store else None for part in ("first", "rest")]
+        self.batched = _TwoStage(CompiledFunction(_across(first, devices), keys[0]),
+                                 CompiledFunction(_across(rest, devices), keys[1]), staged_batch.pending)
+
+
+def _batched(member: Callable[[Any, Any], Any], strategy: str, chunk: int | None,
+             stepper: Stepper | None) -> tuple[Callable[[Any, Any], Any], str]:
+    """A batch's solve of ``member`` (its ``(data, z0)`` batched on every leaf) and the strategy's label: mapped,
+    queued (a vmapped ``stepper`` in chunks) or vmapped in chunks."""
+    if strategy != "vmap":
+        return (lambda data, z0: jax.lax.map(lambda one: member(*one), (data, z0))), strategy
+    if stepper is not None and chunk is not None:
+        return queued(stepper, chunk), "queue"
+    return _vmapped_in_chunks(member, chunk), strategy
+
+
+class _TwoStage:
+    """A solve's compiled program, or its two (:class:`~.stepper.Staged`): ``first`` for every call, and ``rest``,
+    compiled at the first call that needs it (the same shapes never compile twice), for the members ``first``
+    stopped for it. A call gives ``(output, compile seconds spent on rest)``."""
+
+    def __init__(self, first: CompiledFunction, rest: CompiledFunction | None = None,
+                 pending: Callable[[Any], Any] | None = None):
+        self.first, self.rest, self.pending = first, rest, pending
+
+    @classmethod
+    def of(cls, raw: Callable[[Any, Any], Any], key: str | None, role: str, staged: Staged | None) -> _TwoStage:
+        if staged is None:
+            return cls(CompiledFunction(raw, program_key(key, role)))
+        return cls(CompiledFunction(staged.first.solve, program_key(key, f"{role}:first")),
+                   CompiledFunction(staged.rest.solve, program_key(key, f"{role}:rest")), staged.pending)
+
+    def compile(self, data: Any, z0: Any) -> float:
+        return self.first.compile(data, z0)
+
+    def __call__(self, data: Any, z0: Any) -> tuple[Any, float]:
+        out = self.first(data, z0)
+        if self.rest is None:
+            return out, 0.0
+        out, state = out
+        pending = self.pending(out)
+        if not np.any(pending):
+            return out, 0.0
+        seconds = self.rest.compile(data, state)
+        more = jax.device_get(self.rest(data, state))
+        if np.ndim(pending) == 0:
+            return more, seconds
+        # Members the first program finished keep its output (the rest's would be the same values).
+        pick = lambda a, b: np.where(pending.reshape(pending.shape + (1,) * (np.ndim(a) - 1)), a, b)  # noqa: E731
+        return jax.tree.map(pick, more, jax.device_get(out)), seconds
 
 
 def _across(batched: Callable[[Any, Any], Any], devices: list) -> Callable[[Any, Any], Any]:
@@ -96,7 +149,7 @@ def _across(batched: Callable[[Any, Any], Any], devices: list) -> Callable[[Any,
     spec = jax.sharding.PartitionSpec("members")
 
     def run(data, z0):
-        size, count = z0.shape[0], len(devices)
+        size, count = _size(z0), len(devices)
         if size < count:
             return batched(data, z0)
         padded = _pad((data, z0), -size % count)
@@ -111,7 +164,7 @@ def _vmapped_in_chunks(member: Callable[[Any, Any], Any], chunk: int | None) -> 
     ``chunk``, one chunk after another (``jax.lax.map``'s ``batch_size``; the last member repeated to fill the last
     chunk, its copies dropped): one program either way, and a chunk's loop stops with its own slowest member."""
     def run(data, z0):
-        size = z0.shape[0]
+        size = _size(z0)
         if chunk is None or size <= chunk:
             return jax.vmap(member)(data, z0)
         count = -(-size // chunk)
@@ -120,6 +173,11 @@ def _vmapped_in_chunks(member: Callable[[Any, Any], Any], chunk: int | None) -> 
         return jax.tree.map(lambda x: x[:size], out)
 
     return run
+
+
+def _size(z0: Any) -> int:
+    """The number of members of a batch's starts (an array, or a tree of them: a staged solve's states)."""
+    return jax.tree.leaves(z0)[0].shape[0]
 
 
 def _pad(tree: Any, pad: int) -> Any:
@@ -172,6 +230,13 @@ class AbstractPureSolver(abc.ABC):
         batch is a queue (:func:`~.stepper.queued`) instead of chunks one after another."""
         return None
 
+    def staged(self, problem: Any, batch: bool = False) -> Staged | None:
+        """The solve (``batch``: :meth:`pure_solve_batch`'s) as two programs, the second compiled only when a solve
+        needs it (:class:`~.stepper.Staged`), or None (the default): one program. Used by :meth:`solve` and
+        :meth:`solve_batch`; :meth:`solve_fn` stays one program (a caller's ``jit``, ``grad`` or ``vmap`` of it
+        cannot stop between two)."""
+        return None
+
     def pure_solve_batch(self, problem: Any) -> Callable[[Any, Any], Any]:
         """The pure solve that :meth:`solve_batch` maps or vmaps: :meth:`pure_solve`'s unless the solver has a form
         that suits a batch better (the same results)."""
@@ -211,8 +276,10 @@ class AbstractPureSolver(abc.ABC):
 
         compile_seconds = programs.batched.compile(batched_data, z0) + self.prepare_report(problem, z0[0], members[0])
         start = time.perf_counter()
-        out = jax.device_get(jax.block_until_ready(programs.batched(batched_data, z0)))
-        solve_seconds = time.perf_counter() - start
+        out, more = programs.batched(batched_data, z0)
+        out = jax.device_get(jax.block_until_ready(out))
+        solve_seconds = time.perf_counter() - start - more
+        compile_seconds += more
         values = self.batch_values(problem, out, batched_data)
         outs = unstack(out, batch)
         return [
@@ -228,8 +295,10 @@ class AbstractPureSolver(abc.ABC):
         z0 = self.start(problem, data, z0)
         compile_seconds = programs.single.compile(data, z0) + self.prepare_report(problem, z0, data)
         start = time.perf_counter()
-        out = jax.block_until_ready(programs.single(data, z0))
-        solve_seconds = time.perf_counter() - start
+        out, more = programs.single(data, z0)
+        out = jax.block_until_ready(out)
+        solve_seconds = time.perf_counter() - start - more
+        compile_seconds += more
         return self.report(problem, out, data, compile_seconds, solve_seconds)
 
     def _programs(self, problem: Any) -> _Programs:
@@ -238,7 +307,8 @@ class AbstractPureSolver(abc.ABC):
         return cached(problem, ("pure", self, strategy, chunk), lambda: _Programs(
             self.pure_solve(problem), program_key(getattr(problem, "key", None), programs.describe(self)),
             strategy, self.pure_solve_batch(problem), chunk,
-            self.batch_stepper(problem) if strategy == "vmap" else None))
+            self.batch_stepper(problem) if strategy == "vmap" else None, self.staged(problem),
+            self.staged(problem, batch=True)))
 
 
 class PureNLPSolver(AbstractPureSolver, AbstractNLPSolver):

@@ -13,7 +13,7 @@ from typing import Any, Callable, NamedTuple
 import jax
 import jax.numpy as jnp
 
-__all__ = ["Stepper", "queued"]
+__all__ = ["Staged", "Stepper", "queued"]
 
 
 class Stepper(NamedTuple):
@@ -35,6 +35,25 @@ class Stepper(NamedTuple):
         """The whole solve, ``(data, z0) -> output``: one ``lax.while_loop``."""
         state = jax.lax.while_loop(self.running, lambda s: self.step(data, s), self.begin(data, z0))
         return self.end(data, state)
+
+
+class Staged(NamedTuple):
+    """A pure solve as two programs, the second compiled only when a solve needs it (``lax.cond`` compiles both
+    branches): ``first`` runs every solve and stops those that need the rest's code; ``rest`` resumes them from the
+    state ``first`` stopped at. The outputs equal ``rest``'s solve from the start (``first``'s iterations are its
+    own, up to where it stops).
+
+    Attributes:
+        first: a stepper whose ``end`` gives ``(output, state)``.
+        rest: a stepper whose ``begin`` takes ``(data, state)``, a state of ``first``'s; a state that ``first``
+            stopped for good stays stopped.
+        pending: ``output -> bool`` NumPy array (on the host, one per member): whether ``first`` stopped the solve
+            for ``rest``.
+    """
+
+    first: Stepper
+    rest: Stepper
+    pending: Callable[[Any], Any]
 
 
 def queued(stepper: Stepper, slots: int) -> Callable[[Any, Any], Any]:

@@ -28,10 +28,11 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ...compilation.programs import register_namedtuple
 from ...status import Status
-from ..stepper import Stepper
+from ..stepper import Staged, Stepper
 from . import kkt
 from .problem import Layout
 from .restoration import Restoration, RestorationPhase
@@ -55,6 +56,9 @@ from .rules import (
 __all__ = ["InteriorPointSolution", "InteriorPointStepper", "WarmStart"]
 
 RUNNING = -1
+# The status of a solve by the program without the restoration phase (InteriorPointStepper.first) that needs it: the
+# program with it (InteriorPointStepper.rest) continues from the state it stopped at. Never a solve's final status.
+NEEDS_RESTORATION = -2
 MU_INIT = 0.1
 # A step below STALL_STEP (relative to |x|) at an infeasible point, STALL_COUNT times in a row, ends the solve as
 # INFEASIBLE: the fraction-to-the-boundary rule shrinks every step towards bounds that block all progress.
@@ -113,7 +117,8 @@ class InteriorPointSolution(NamedTuple):
     warm: WarmStart
 
 
-class _State(NamedTuple):
+@register_namedtuple  # a first stage's state crosses into the second stage's program (InteriorPointStepper.rest)
+class LoopState(NamedTuple):
     x: jax.Array
     lam: jax.Array
     zl: jax.Array
@@ -188,6 +193,13 @@ class InteriorPointStepper:
             (layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
             else (kkt.factorize_with_inertia, kkt.solve))
         self.stepper = Stepper(self.begin, self.step, self.running, self.end)
+        # The same solve in two programs, the second compiled only where a solve needs the restoration phase (about
+        # a third of the program's compile time; lax.cond would compile both branches): the first stops a solve
+        # where it would enter the phase, the second resumes from that state with the phase in its loop.
+        first = Stepper(self.begin, lambda data, st: self._step(data, st, False), self.running,
+                        lambda data, st: (self.end(data, st), st))
+        self.staged = Staged(first, Stepper(self.resume, self.step, self.running, self.end),
+                             lambda out: np.asarray(out.status) == NEEDS_RESTORATION)
 
     def cold(self, data: Any, z0: Any) -> WarmStart:
         """IPOPT's default start from the NLP's variables ``z0``."""
@@ -205,7 +217,7 @@ class InteriorPointStepper:
         compl = jnp.concatenate([jnp.where(b.hl, gl * zl - mu, 0.0), jnp.where(b.hu, gu * zu - mu, 0.0)])
         return scaled_error(dual, g, compl, lam, jnp.sum(jnp.abs(zl)) + jnp.sum(jnp.abs(zu)), b.count)
 
-    def _evaluate(self, data: Any, st: _State) -> tuple[Any, jax.Array, jax.Array, jax.Array, jax.Array]:
+    def _evaluate(self, data: Any, st: LoopState) -> tuple[Any, jax.Array, jax.Array, jax.Array, jax.Array]:
         """``(point, sigma, row_scale, kkt, stop)`` at the state's iterate: its derivatives (with the scaling
         measured here at a fresh start), the optimality error and the status it stops with (``RUNNING``: none)."""
         layout, n = self.layout, self.n
@@ -226,8 +238,13 @@ class InteriorPointStepper:
             converged, int(Status.CONVERGED), jnp.where(st.k >= self.max_iter, int(Status.ITERATION_LIMIT), RUNNING)))
         return pt, sigma, row_scale, kkt, stop
 
-    def step(self, data: Any, st: _State) -> _State:
+    def step(self, data: Any, st: LoopState) -> LoopState:
         """One iteration (or, for a member that has stopped, its final values)."""
+        return self._step(data, st, True)
+
+    def _step(self, data: Any, st: LoopState, restores: bool) -> LoopState:
+        """:meth:`step`; without the restoration phase in the program (``restores`` False: :attr:`first`), an
+        iteration that would enter it stops the solve at its start with the status ``NEEDS_RESTORATION``."""
         pt, sigma, row_scale, kkt, stop = self._evaluate(data, st)
 
         def finish(_):
@@ -237,11 +254,11 @@ class InteriorPointStepper:
                                violation=pt.violation, sigma=sigma, row_scale=row_scale)
 
         def iterate(_):
-            return self._iterate(data, st, pt, sigma, row_scale, kkt)
+            return self._iterate(data, st, pt, sigma, row_scale, kkt, restores)
 
         return jax.lax.cond(stop == RUNNING, iterate, finish, None)
 
-    def _iterate(self, data: Any, st: _State, pt: Any, sigma, row_scale, kkt) -> _State:
+    def _iterate(self, data: Any, st: LoopState, pt: Any, sigma, row_scale, kkt, restores: bool) -> LoopState:
         """A restoration iteration (while that phase is active) or a main one, then the stall count and status."""
         x = st.x
 
@@ -249,9 +266,12 @@ class InteriorPointStepper:
             return self.restoration.step(st, pt, data)
 
         def advance(_):
-            return self._advance(data, st, pt, sigma, row_scale)
+            return self._advance(data, st, pt, sigma, row_scale, restores)
 
-        new, failed = jax.lax.cond(st.rs.active, restore, advance, None) if self.m else advance(None)
+        if restores and self.m:
+            new, failed = jax.lax.cond(st.rs.active, restore, lambda _: advance(_)[:2], None)
+        else:
+            new, failed, needs = advance(None)
         infeasible = pt.violation > self.constr_viol_tol
         negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
         entered = new.rs.active & ~st.rs.active
@@ -261,11 +281,16 @@ class InteriorPointStepper:
         status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
         move = status == RUNNING
         out = jax.tree.map(lambda a, b: jnp.where(move, a, b), new, st)
-        return out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
-                            violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
-                            row_scale=row_scale)
+        out = out._replace(k=st.k + move.astype(st.k.dtype), status=status, kkt=kkt, objective=pt.objective,
+                           violation=pt.violation, stalls=stalls.astype(st.stalls.dtype), sigma=sigma,
+                           row_scale=row_scale)
+        if restores or not self.m:
+            return out
+        # The iteration is left to the program with the restoration phase (:attr:`rest`), from its start.
+        stopped = st._replace(status=jnp.full_like(st.status, NEEDS_RESTORATION))
+        return jax.tree.map(lambda a, b: jnp.where(needs, a, b), stopped, out)
 
-    def _direction(self, st: _State, pt: Any) -> _Direction:
+    def _direction(self, st: LoopState, pt: Any) -> _Direction:
         """The barrier update (monotone: as many decreases as the current point allows), the Newton step with
         inertia correction and the bound multipliers' steps, and the fraction-to-the-boundary limits."""
         b, m, mu_min = self.bounds, self.m, self.mu_min
@@ -290,7 +315,7 @@ class InteriorPointStepper:
         return _Direction(mu, factors, delta_w, inertia_ok, r1, dx, dlam, dzl, dzu, tau, alpha_max, alpha_z,
                           grad_phi @ dx)
 
-    def _filter(self, st: _State, pt: Any, d: _Direction) -> _Filter:
+    def _filter(self, st: LoopState, pt: Any, d: _Direction) -> _Filter:
         """The filter line search's reference at the current point: ``theta``, ``phi``, the filter's thresholds
         (fixed at the first iteration) and the filter itself, emptied when ``mu`` changed (as IPOPT does)."""
         x = st.x
@@ -305,7 +330,7 @@ class InteriorPointStepper:
         tiny = jnp.max(jnp.abs(d.dx) / (1.0 + jnp.abs(x)), initial=0.0) < 10.0 * EPS
         return _Filter(theta, phi0, theta_min, theta_max, reset, f_theta, f_phi, a_min, tiny)
 
-    def _search(self, data: Any, st: _State, pt: Any, d: _Direction, flt: _Filter, sigma, row_scale):
+    def _search(self, data: Any, st: LoopState, pt: Any, d: _Direction, flt: _Filter, sigma, row_scale):
         """IPOPT's filter line search from ``x`` along the Newton step: ``(accepted, x_new, lam_new, alpha,
         f_type)``."""
         x, lam, m, dtype = st.x, st.lam, self.m, st.x.dtype
@@ -346,9 +371,11 @@ class InteriorPointStepper:
             lambda ls: ~ls[1] & ~ls[2] & (ls[0] < MAX_TRIALS), trial, ls0)
         return accepted, x_new, lam_new, alpha, f_type
 
-    def _advance(self, data: Any, st: _State, pt: Any, sigma, row_scale) -> tuple[_State, jax.Array]:
-        """A main iteration: ``(the next state, failed)``; where the line search fails, the restoration phase starts
-        from the current point, which joins the filter."""
+    def _advance(self, data: Any, st: LoopState, pt: Any, sigma, row_scale,
+                 restores: bool = True) -> tuple[LoopState, jax.Array, jax.Array]:
+        """A main iteration: ``(the next state, failed, restore)``; where the line search fails, the restoration
+        phase starts from the current point, which joins the filter (``restores`` False: ``restore`` says only that
+        it would, and the state is not the restoration's)."""
         m, tol = self.m, self.tol
         x, zl, zu = st.x, st.zl, st.zu
         d = self._direction(st, pt)
@@ -363,15 +390,19 @@ class InteriorPointStepper:
         filter_next = jnp.where(flt.reset, 0, st.filter_next) + grow.astype(jnp.int32)
 
         zl_new, zu_new = self.bounds.clip_multipliers(x_new, zl + d.alpha_z * d.dzl, zu + d.alpha_z * d.dzu, d.mu)
-        rs, lam_r, zl_r, zu_r = self.restoration.enter(x, pt.g, zl, zu, d.mu)
-        pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
-        new = st._replace(x=pick(x, x_new), lam=pick(lam_r, lam_new), zl=pick(zl_r, zl_new),
-                          zu=pick(zu_r, zu_new), mu=d.mu, rs=jax.tree.map(pick, rs, st.rs),
-                          theta_min=flt.theta_min, theta_max=flt.theta_max, filter_theta=f_theta, filter_phi=f_phi,
-                          filter_next=filter_next, delta_w=d.delta_w)
-        return new, ~(accepted | restore) | ~d.inertia_ok
+        if restores:
+            rs, lam_r, zl_r, zu_r = self.restoration.enter(x, pt.g, zl, zu, d.mu)
+            pick = lambda new, old: jnp.where(restore, new, old)  # noqa: E731
+            x_new, lam_new, rs = pick(x, x_new), pick(lam_r, lam_new), jax.tree.map(pick, rs, st.rs)
+            zl_new, zu_new = pick(zl_r, zl_new), pick(zu_r, zu_new)
+        else:
+            rs = st.rs
+        new = st._replace(x=x_new, lam=lam_new, zl=zl_new, zu=zu_new, mu=d.mu, rs=rs, theta_min=flt.theta_min,
+                          theta_max=flt.theta_max, filter_theta=f_theta, filter_phi=f_phi, filter_next=filter_next,
+                          delta_w=d.delta_w)
+        return new, ~(accepted | restore) | ~d.inertia_ok, restore
 
-    def begin(self, data: Any, start: Any) -> _State:
+    def begin(self, data: Any, start: Any) -> LoopState:
         """The state before the first iteration, from ``z0`` (IPOPT's default start) or a :class:`WarmStart`."""
         ws = start if isinstance(start, WarmStart) else self.cold(data, start)
         hl, hu, xl, xu = self.bounds.hl, self.bounds.hu, self.bounds.xl, self.bounds.xu
@@ -383,14 +414,19 @@ class InteriorPointStepper:
         empty = jnp.full(FILTER_SIZE, jnp.inf, x0.dtype)
         int0 = jnp.array(0, jnp.int32)
         rs = self.restoration.idle(x0)
-        return _State(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, rs, one, one,
+        return LoopState(x0, ws.lam, jnp.where(hl, ws.zl, 0.0), jnp.where(hu, ws.zu, 0.0), ws.mu, rs, one, one,
                       empty, empty, int0, 0.0 * one, int0, jnp.array(RUNNING, jnp.int32), jnp.inf * one,
                       jnp.nan * one, jnp.inf * one, int0, ws.sigma, ws.row_scale, ws.fresh > 0.5)
 
-    def running(self, st: _State) -> jax.Array:
+    def resume(self, data: Any, st: LoopState) -> LoopState:
+        """A state that :attr:`staged`'s first program stopped for the restoration phase, running again (any other
+        stopped state stays stopped)."""
+        return st._replace(status=jnp.where(st.status == NEEDS_RESTORATION, RUNNING, st.status).astype(st.status.dtype))
+
+    def running(self, st: LoopState) -> jax.Array:
         return st.status == RUNNING
 
-    def end(self, data: Any, st: _State) -> InteriorPointSolution:
+    def end(self, data: Any, st: LoopState) -> InteriorPointSolution:
         layout, n, m, scale, b = self.layout, self.n, self.m, self.scale, self.bounds
         gl, gu = b.gaps(st.x)
         held_l, held_u = b.hl & (st.zl > gl), b.hu & (st.zu > gu)

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.linalg import cho_solve
 
+from ...compilation.programs import register_namedtuple
 from .kkt import regularized_cholesky
 from .rules import (
     FILTER_SIZE,
@@ -68,6 +69,7 @@ RHO, KAPPA_RESTO, BOUND_MULT_RESET = 1e3, 0.9, 1e3
 THETA_MAX_R, THETA_MIN_R = 1e8, 1e-4
 
 
+@register_namedtuple  # part of the loop's state, which crosses between a solve's two programs (loop.py)
 class Restoration(NamedTuple):
     """The restoration phase's state; while ``active``, the loop's ``lam``, ``zl`` and ``zu`` are the restoration
     problem's multipliers (of ``g - p + n = 0`` and of the bounds of ``x``)."""

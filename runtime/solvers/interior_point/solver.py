@@ -15,7 +15,7 @@ from ...status import Status
 from ..base import ScaledProblem, cached
 from ..implicit import Active, differentiable
 from ..pure import PureNLPSolver, ScaledEvaluation
-from ..stepper import Stepper
+from ..stepper import Staged, Stepper
 from .loop import InteriorPointSolution, InteriorPointStepper, WarmStart
 from .problem import Layout
 
@@ -131,6 +131,11 @@ class InteriorPoint(PureNLPSolver):
         """:meth:`pure_solve_batch`'s solve as a :class:`Stepper` (a chunked batch's queue)."""
         return self._compiled(nlp, vmapped=self.batch_strategy(nlp) == "vmap").stepper
 
+    def staged(self, nlp: NLP, batch: bool = False) -> Staged:
+        """:meth:`solve`'s and :meth:`solve_batch`'s solve as two programs: the first without the restoration phase,
+        the second, with it, compiled only when a solve (a batch's member) needs it (see the README)."""
+        return self._compiled(nlp, vmapped=batch and self.batch_strategy(nlp) == "vmap").staged
+
     def cold_start(self, nlp: NLP) -> Callable[[Any, Any], WarmStart]:
         """The pure ``(data, z0) ->`` :class:`WarmStart` of IPOPT's default start from ``z0``, which a ``jnp.where``
         can choose against the ``warm`` of an earlier solution (one program for both)."""
@@ -191,7 +196,7 @@ class _Compiled(ScaledEvaluation):
         layout = Layout(problem, method)
         stepper = InteriorPointStepper(layout, solver.tol, solver.constr_viol_tol, solver.max_iter,
                                        solver.second_order_correction)
-        self.cold, self.stepper = stepper.cold, stepper.stepper
+        self.cold, self.stepper, self.staged = stepper.cold, stepper.stepper, stepper.staged
         self.raw = differentiable(stepper.stepper.solve, problem, _held,
                                   lambda out: out.status == int(Status.CONVERGED), multipliers=True)
 
