@@ -307,7 +307,6 @@ class Riccati:
                            check=(k > 0) | (delta_c > 0) | (condition_bound(chol_s) > CHECK_COND))
             return f, ok_h, ok_s
 
-        # No placeholder factors: the first attempt runs before the loop and fixes the carry's shapes.
         return certified(factorize, rho0, m, mu, delta_w_last, dtype)
 
     def _once(self, f: Factors, jac, r1, r2, presolved=False):

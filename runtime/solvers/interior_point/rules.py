@@ -130,8 +130,7 @@ def inertia_schedule(k, delta_w, delta_w_last, first_grown):
 def regularized(factorize, delta_w_last, dtype, init=None):
     """``(factors, delta_w, ok)`` of ``factorize(delta_w) -> (factors, ok)`` at the least ``delta_w`` of IPOPT's
     schedule from 0 for which it succeeds (one factorisation an attempt), where positive definiteness alone certifies
-    the inertia. ``init``: placeholder factors for the loop's carry (None: the first attempt runs before the loop and
-    fixes the carry's shapes)."""
+    the inertia. ``init``: placeholder factors for the loop's carry (None: zeros of the factors' shapes)."""
     def attempt(a):
         k, delta_w, _, _ = a
         factors, ok = factorize(delta_w)
@@ -173,7 +172,10 @@ def certified(factorize, rho0, m, mu, delta_w_last, dtype, init=None):
 def _attempts(attempt, start):
     """The ``lax.while_loop`` of ``attempt`` on ``(k, delta_w, ..., done, factors)`` until done or out of attempts."""
     if start[-1] is None:
-        start = attempt(start)
+        # Zeros of the factors' shapes: the loop always runs its first attempt. (Running that attempt before the loop
+        # put a second copy of the factorisation in the program: a third of a vmapped Epidemic batch's XLA input.)
+        shapes = jax.eval_shape(attempt, start)[-1]
+        start = (*start[:-1], jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes))
     return jax.lax.while_loop(lambda a: ~a[-2] & (a[0] < MAX_ATTEMPTS) & (a[1] <= DELTA_W_MAX), attempt, start)
 
 
