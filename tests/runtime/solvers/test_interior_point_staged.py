@@ -2,8 +2,8 @@
 the second, with it, compiled only when a solve needs it.
 
 What must hold: a solve equals the one-program solve (``solve_fn``) to the last bit, and a batch's members take its
-iterations, whether or not they enter the restoration phase; the first program really stops where the phase starts (else the
-second stage is never tested); the second program is compiled at its first need only, once per shapes.
+iterations, whether or not they enter the restoration phase; the first program really stops where the phase starts
+(else the second stage is never tested); the second program is compiled at its first need only, once per shapes.
 Wächter & Biegler's example (tests/runtime/solvers/test_interior_point_restoration.py) restores from ``x1 < 0``;
 from ``x = (-1, 2, 3)`` with ``b = -1`` it converges without the phase.
 """
@@ -20,6 +20,8 @@ import pytest
 from myriad.runtime.nlp import NLP
 from myriad.runtime.solvers import InteriorPoint
 from myriad.runtime.solvers.base import canonical_data
+
+pytestmark = pytest.mark.slow  # not in `make test-fast`: about twenty programs of a small NLP compiled
 
 jax.config.update("jax_enable_x64", True)
 
