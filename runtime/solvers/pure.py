@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..compilation import CompiledFunction, program_key, programs
+from ..compilation import CompiledFunction, compile_many, program_key, programs
 from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import Status
@@ -50,14 +50,14 @@ class ScaledEvaluation:
             return evaluate(z / scale, data)
 
         self.evaluate = CompiledFunction(unscaled, program_key(problem.key, "evaluate"))
-        self._evaluate_batch = CompiledFunction(jax.vmap(unscaled), program_key(problem.key, "evaluate:batch"))
+        self.evaluate_batch = CompiledFunction(jax.vmap(unscaled), program_key(problem.key, "evaluate:batch"))
 
     def values_batch(self, z: np.ndarray, batched_data: Any, nlp: Any) -> list[tuple[float, np.ndarray | None, float]]:
         """``(F(z), c(z), violation)`` of each member (``z`` (B, n), every leaf of ``batched_data`` batched), from one
         vmapped program, with each member's :func:`~.base.constraint_violation` of ``nlp`` computed for all at once
         (not a dispatch per member: measured in the solver-code note)."""
-        self._evaluate_batch.compile(z, batched_data)
-        f, c = (np.asarray(a) for a in self._evaluate_batch(z, batched_data))
+        self.evaluate_batch.compile(z, batched_data)
+        f, c = (np.asarray(a) for a in self.evaluate_batch(z, batched_data))
         constrained = bool(self.problem.n_constraints)
         violation = constraint_violations(nlp, z, c if constrained else None)
         return [(float(f[i]), c[i] if constrained else None, float(violation[i])) for i in range(z.shape[0])]
@@ -118,9 +118,6 @@ class _TwoStage:
             return cls(CompiledFunction(raw, program_key(key, role)))
         return cls(CompiledFunction(staged.first.solve, program_key(key, f"{role}:first")),
                    CompiledFunction(staged.rest.solve, program_key(key, f"{role}:rest")), staged.pending)
-
-    def compile(self, data: Any, z0: Any) -> float:
-        return self.first.compile(data, z0)
 
     def __call__(self, data: Any, z0: Any) -> tuple[Any, float]:
         out = self.first(data, z0)
@@ -205,9 +202,11 @@ class AbstractPureSolver(abc.ABC):
     def report(self, problem: Any, output: Any, data: Any, compile_seconds: float, solve_seconds: float) -> Any:
         """One member's output (host arrays) as the solver's result object."""
 
-    def prepare_report(self, problem: Any, z0: np.ndarray, data: Any) -> float:
-        """Compile what :meth:`report` evaluates; returns the seconds spent (0 when nothing is compiled)."""
-        return 0.0
+    def report_programs(self, problem: Any, z0: np.ndarray, data: Any, batch: bool = False) -> list[tuple]:
+        """What :meth:`report` (``batch``: :meth:`batch_values`, for the batch's ``z0`` and ``data``) evaluates, as
+        ``(CompiledFunction, args)`` jobs: they compile beside the solve's program (:func:`compile_many`: XLA in
+        parallel threads). None by default."""
+        return []
 
     def batch_values(self, problem: Any, output: Any, batched_data: Any) -> list | None:
         """What :meth:`report` evaluates, for every member of a batch's ``output`` at once (passed to it as
@@ -274,7 +273,8 @@ class AbstractPureSolver(abc.ABC):
         one = np.asarray(self.start(problem, members[0])).shape
         z0 = np.broadcast_to(z0, (batch, *one)).copy()
 
-        compile_seconds = programs.batched.compile(batched_data, z0) + self.prepare_report(problem, z0[0], members[0])
+        compile_seconds = compile_many([(programs.batched.first, (batched_data, z0)),
+                                        *self.report_programs(problem, z0, batched_data, batch=True)])
         start = time.perf_counter()
         out, more = programs.batched(batched_data, z0)
         out = jax.device_get(jax.block_until_ready(out))
@@ -293,7 +293,7 @@ class AbstractPureSolver(abc.ABC):
         programs = self._programs(problem)
         data = canonical_data(data)
         z0 = self.start(problem, data, z0)
-        compile_seconds = programs.single.compile(data, z0) + self.prepare_report(problem, z0, data)
+        compile_seconds = compile_many([(programs.single.first, (data, z0)), *self.report_programs(problem, z0, data)])
         start = time.perf_counter()
         out, more = programs.single(data, z0)
         out = jax.block_until_ready(out)
@@ -330,8 +330,9 @@ class PureNLPSolver(AbstractPureSolver, AbstractNLPSolver):
     def start(self, nlp: NLP, data: Any, z0: Any = None) -> np.ndarray:
         return initial_point(nlp, data, z0)
 
-    def prepare_report(self, nlp: NLP, z0: np.ndarray, data: Any) -> float:
-        return self._compiled(nlp).evaluate.compile(z0, data)
+    def report_programs(self, nlp: NLP, z0: np.ndarray, data: Any, batch: bool = False) -> list[tuple]:
+        fns = self._compiled(nlp)
+        return [(fns.evaluate_batch if batch else fns.evaluate, (z0, data))]
 
     def batch_values(self, nlp: NLP, out: Any, batched_data: Any) -> list:
         return self._compiled(nlp).values_batch(np.asarray(out.z), batched_data, nlp)
