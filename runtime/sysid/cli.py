@@ -59,7 +59,7 @@ def read_config(args):
 def run(args) -> int:
     from ..configs import usage_message
     from ..learn.dataset import sampling_scales
-    from .run import SysidConfig, failed, run_sysid
+    from .run import SysidConfig, data_noise, failed, run_sysid
 
     if error := first_error(args):
         return usage("sysid", error)
@@ -73,6 +73,10 @@ def run(args) -> int:
     if config.model == "parametric" and not system.learnable:
         return usage("sysid", f"{system.name} declares no learnable parameters; use --model node, or mark "
                               f"parameters `learnable: true` (with a `guess`) in its spec")
+    try:  # the spec's declared noise and the kit's together, or process noise on an integrator without a scheme
+        data_noise(system, config)
+    except ValueError as exc:
+        return usage("sysid", str(exc))
     try:  # a bound the sampling needs and the spec lacks: a usage error, before any work
         sampling_scales(system, dataclasses.replace(config.sampling, noise=config.noise))
     except ValueError as exc:

@@ -15,7 +15,8 @@ rolled out by the dataset's own integrator on its grid under the observed contro
   standard errors overconfident (as multiple shooting's are on noisy data: each window starts at an observation).
 
 On noisy data, observations at a finite state bound are dropped (w = 0; ``drop_clipped``): the dataset clips noisy
-observations to the bounds, so they are censored, not Gaussian.
+observations to the bounds, so they are censored, not Gaussian. Data made under a spec's declared noise (``noise``,
+:mod:`.noise`: process noise and unclipped readings) are noisy data too, with nothing clipped.
 
 The unknowns are scaled, theta = c p with c = theta0 where theta0 != 0 (else 1), so parameters of very different
 magnitudes (HIV's k = 4.4e-5 and T_max = 1400) are equally conditioned; ``min_p 1/2 ||r(c p)||^2`` is one
@@ -26,6 +27,10 @@ K unknowns, sigma^2 = RSS / (m - K), Cov(p) = sigma^2 V S^-2 V^T and Cov(theta) 
 Singular values below ``RCOND * max(S)`` are directions in which the residuals do not change: a parameter with a
 component above ``NULL_TOL`` in them is listed in ``unidentifiable`` with a NaN standard error (and covariance row)
 instead of a confident wrong number. On noise-free data sigma^2 ~ 0, and so are the standard errors.
+
+Under a declared noise (``noise`` given, single shooting) the residuals of a trajectory are correlated (process
+noise) and their variances known: the covariance is the sandwich (J^T J)^+ J^T Omega J (J^T J)^+ on J's range, Omega
+the residuals' covariance under that noise (:func:`.noise.residual_covariance`), instead of sigma^2 (J^T J)^+.
 """
 
 from __future__ import annotations
@@ -44,8 +49,10 @@ import optimistix as optx
 from ..integrators import rollout
 from ..learn.dataset import check_source
 from ..status import Status
+from ..uncertainty.sde import for_integrator
 from .fit import METHODS
 from .losses import state_scale
+from .noise import DeclaredNoise, residual_covariance
 
 __all__ = ["LeastSquaresResult", "least_squares"]
 
@@ -190,10 +197,11 @@ def _weights(system, x_obs: np.ndarray, s: np.ndarray, fit_starts: bool, drop_cl
     return weights
 
 
-def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: float,
-                finite: bool) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], str]:
+def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: float, finite: bool,
+                meat: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, tuple[str, ...], str]:
     """``(covariance of the parameters, singular values of J, unidentifiable names, a note for the message)``: the
-    Gauss-Newton covariance on J's range; NaN rows and columns for a parameter with a component in its null space."""
+    Gauss-Newton covariance on J's range, or with ``meat`` (J^T Omega J, unknowns x unknowns) the sandwich; NaN rows
+    and columns for a parameter with a component in its null space."""
     n_par, n_all = len(names), jac.shape[1]
     sv, vt, keep = np.full(n_all, math.nan), np.zeros((n_all, n_all)), np.zeros(n_all, dtype=bool)
     if finite:
@@ -202,7 +210,12 @@ def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: 
     v_null = vt[~keep, :n_par].T if finite else np.zeros((n_par, 0))  # the parameters' part of the null directions
     bad = np.linalg.norm(v_null, axis=1) > NULL_TOL
     v = vt[keep, :n_par]
-    cov = c[:, None] * ((v.T / sv[keep] ** 2) @ v * sigma2) * c[None, :]
+    if meat is None:
+        cov_p = (v.T / sv[keep] ** 2) @ v * sigma2
+    else:  # (J^T J)^+ = V S^-2 V^T on the kept directions; the parameters' rows of it, then around the meat
+        bread = (vt[keep, :n_par].T / sv[keep] ** 2) @ vt[keep, :]
+        cov_p = bread @ meat @ bread.T
+    cov = c[:, None] * cov_p * c[None, :]
     cov[bad | (not finite), :] = math.nan
     cov[:, bad | (not finite)] = math.nan
     unidentifiable, note = tuple(k for k, b in zip(names, bad) if b), ""
@@ -214,9 +227,27 @@ def _covariance(jac: np.ndarray, c: np.ndarray, names: tuple[str, ...], sigma2: 
     return cov, sv, unidentifiable, note
 
 
+def _meat(model, dataset, integrator, names, c, p, s, x_obs, u_obs, weights, jac, noise: DeclaredNoise,
+          method: str) -> tuple[np.ndarray, str]:
+    """``(sum_b J_b^T Omega_b J_b, a note)``: the sandwich's middle under the declared noise at the solution (NaN
+    for multiple shooting, whose windows start at noisy readings: no standard errors then)."""
+    if method != "single_shooting":
+        return np.full((jac.shape[1],) * 2, math.nan), "; no standard errors under the declared noise by multiple " \
+            "shooting (its windows start at noisy readings): refine by single shooting"
+    n_par, (n_batch, n_nodes, n) = len(names), x_obs.shape
+    theta = {k: jnp.asarray(c[i] * p[i]) for i, k in enumerate(names)}
+    starts = p[n_par:].reshape(n_batch, n) * s if p.size > n_par else x_obs[:, 0]
+    omega = np.asarray(residual_covariance(
+        theta, model.system.default_params(jnp.float64), jnp.asarray(dataset.times, jnp.float64), jnp.asarray(starts),
+        jnp.asarray(u_obs), jnp.asarray(weights), jnp.asarray(noise.process), jnp.asarray(noise.observation),
+        model=model, scheme=for_integrator(integrator)))
+    jb = jac.reshape(n_batch, n_nodes * n, -1)
+    return np.einsum("bmi,bmk,bkj->ij", jb, omega, jb), ""
+
+
 def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "single_shooting",
                   window: int | None = None, fit_starts: bool | None = None, drop_clipped: bool | None = None,
-                  max_steps: int = 200, scale: Any = "range") -> LeastSquaresResult:
+                  max_steps: int = 200, scale: Any = "range", noise: DeclaredNoise | None = None) -> LeastSquaresResult:
     """Fit a :class:`~myriad.runtime.learn.models.Parametric` model's parameters to a dataset of its system by
     Levenberg-Marquardt (see the module docstring), from ``theta0`` (names left out start at the model's guesses).
 
@@ -226,6 +257,9 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
         drop_clipped: leave out observations at a finite state bound; None: on noisy data.
         max_steps: Levenberg-Marquardt's step limit.
         scale: the per-state residual scale: "range" (see the module docstring), None (1) or n positive numbers.
+        noise: the noise the data were made with when the spec declares it (:func:`.noise.declared_noise`, data from
+            :func:`.noise.noisy_dataset`): noisy data, and single shooting's standard errors are the sandwich's
+            under it (the module docstring); multiple shooting's are then NaN (its windows start at noisy readings).
 
     Raises:
         ValueError: a dataset of another system or spec, a model with non-scalar parameters (a Neural ODE: use
@@ -237,9 +271,10 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     names = tuple(theta_start)
     n_steps = int(np.shape(dataset.times)[0]) - 1
     window = max(1, n_steps // 10) if method == "multiple_shooting" and window is None else window
-    noisy = dataset.sampling.noise > 0
+    noisy = dataset.sampling.noise > 0 or noise is not None
     fit_starts = noisy and method == "single_shooting" if fit_starts is None else fit_starts
-    drop_clipped = noisy if drop_clipped is None else drop_clipped
+    # (declared noise is never clipped: nothing to drop)
+    drop_clipped = dataset.sampling.noise > 0 if drop_clipped is None else drop_clipped
     _check(model, dataset, method, window, n_steps, fit_starts)
     x_obs, u_obs = (np.asarray(a, dtype=np.float64) for a in (dataset.train.states, dataset.train.controls))
     integrator = dataset.sampling.integrator
@@ -267,7 +302,11 @@ def least_squares(model, dataset, *, theta0: dict | None = None, method: str = "
     n_obs, n_par = int(np.count_nonzero(weights)), len(names)
     dof, rss = n_obs - p.size, float(r @ r)
     sigma2 = rss / dof if dof > 0 else math.nan
-    cov, sv, unidentifiable, note = _covariance(jac, c, names, sigma2, finite)
+    meat = None
+    if noise is not None and finite:
+        meat, note = _meat(model, dataset, integrator, names, c, p, s, x_obs, u_obs, weights, jac, noise, method)
+        message += note
+    cov, sv, unidentifiable, note = _covariance(jac, c, names, sigma2, finite, meat)
     message += note
     if finite and not noisy and status is Status.CONVERGED and rss > 1e-12 * n_obs:  # exact data, no fit
         status, message = Status.NOT_CONVERGED, message + (

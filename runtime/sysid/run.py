@@ -28,11 +28,13 @@ from ..learn.reaim import Reaim, observe, reaim
 from ..loader import load
 from ..solve import solve
 from ..system import System
+from ..uncertainty.sde import for_integrator
 from .fit import FitConfig, fit
 from .least_squares import least_squares
+from .noise import DeclaredNoise, declared_noise, noisy_dataset
 from .polish import PolishConfig, polish
 
-__all__ = ["SysidConfig", "SysidReport", "node_fit_config", "run_sysid"]
+__all__ = ["SysidConfig", "SysidReport", "data_noise", "node_fit_config", "run_sysid"]
 
 _METHODS = ("least_squares", "adam")
 # The fit's stops that are a success; least squares reports a solver status, whose success is the same word.
@@ -74,6 +76,9 @@ class SysidConfig:
             max_param_error=null``): no check.
         max_gap: the experiment fails (exit 1) when the plan costs more than this fraction above the true optimum
             on the true system (the record's ``relative_gap``); None: no bound.
+        declared_noise: on a spec that declares its noise (schema 3 ``noise:``), the data have that process and
+            observation noise (:mod:`.noise`) and least squares' standard errors account for it (then ``noise``
+            must be 0); false: noise-free data (or ``noise``'s). No effect on a spec without declared noise.
     """
 
     model: str = "parametric"
@@ -92,6 +97,7 @@ class SysidConfig:
     epochs: int | None = None
     max_param_error: float | None = 0.05
     max_gap: float | None = None
+    declared_noise: bool = True
 
     def __post_init__(self):
         cls = model_class(self.model, "SysidConfig")
@@ -137,6 +143,8 @@ class SysidConfig:
                 raise ValueError(f"SysidConfig: {name} must be a finite fraction >= 0 or None, got {v!r}")
         if self.seed < 0:
             raise ValueError(f"SysidConfig: seed must be >= 0, got {self.seed}")
+        if not isinstance(self.declared_noise, bool):
+            raise ValueError(f"SysidConfig: declared_noise must be true or false, got {self.declared_noise!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +168,7 @@ class SysidReport:
     rounds: int
     polish: tuple = ()
     reaim: Reaim | None = None
+    noise: DeclaredNoise | None = None
 
     @property
     def converged(self) -> bool:
@@ -180,6 +189,8 @@ class SysidReport:
             "max_param_error": self.config.max_param_error, "max_gap": self.config.max_gap,
             "polish": [p.record() for p in self.polish],
             "reaim": None if self.reaim is None else self.reaim.record(),
+            # only where a spec's declared noise made the data: the records of other specs keep their keys
+            **({} if self.noise is None else {"declared_noise": self.noise.record()}),
         }
 
 
@@ -205,16 +216,38 @@ def _merge(a: Dataset, b: Dataset) -> Dataset:
                                test=_cat(a.test, b.test))
 
 
-def _least_squares_fit(model, dataset: Dataset, theta, noise: float):
+def data_noise(system: System, config: SysidConfig) -> DeclaredNoise | None:
+    """The declared noise the experiment's data get (None: the kit's, ``config.noise``); ``ValueError`` naming the
+    fixes when both are asked for."""
+    declared = declared_noise(system) if config.declared_noise else None
+    if declared is not None and config.noise > 0:
+        raise ValueError(f"{system.name} declares its noise (schema 3 `noise:`), which its data get; noise="
+                         f"{config.noise} would add the kit's on top: leave noise at 0, or use the kit's instead of "
+                         f"the declared one with --set declared_noise=false")
+    if declared is not None and np.any(declared.process > 0):
+        try:
+            for_integrator(config.sampling.integrator)
+        except ValueError as exc:  # (its fix names the integrator; here it is the sampling's)
+            raise ValueError(f"{system.name}: {exc} (--set sampling.integrator=...)") from None
+    return declared
+
+
+def _sample(system: System, sampling: Sampling, noise: DeclaredNoise | None, **kwargs) -> Dataset:
+    return make_dataset(system, sampling, **kwargs) if noise is None else noisy_dataset(system, sampling, noise,
+                                                                                         **kwargs)
+
+
+def _least_squares_fit(model, dataset: Dataset, theta, noise: float, declared: DeclaredNoise | None = None):
     """Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local minimum
-    like Mountain Car's), then single shooting from there (honest standard errors on noisy data)."""
-    ms = least_squares(model, dataset, theta0=theta, method="multiple_shooting")
+    like Mountain Car's), then single shooting from there (honest standard errors on noisy data, declared noise's
+    included)."""
+    ms = least_squares(model, dataset, theta0=theta, method="multiple_shooting", noise=declared)
     start = ms.theta if all(math.isfinite(v) for v in ms.theta.values()) else theta
-    ls = least_squares(model, dataset, theta0=start)
+    ls = least_squares(model, dataset, theta0=start, noise=declared)
     # Noise-free, the multiple-shooting fit is exact and may stand in for a refinement that did not converge; on noisy
     # data its standard errors are overconfident (each window starts at a noisy observation), so the refinement's
     # failure stands.
-    if not ls.converged and ms.converged and noise == 0:
+    if not ls.converged and ms.converged and noise == 0 and declared is None:
         ls = dataclasses.replace(ms, message=f"{ms.message} (multiple shooting; the single-shooting refinement did "
                                              f"not converge: {ls.message})")
     return ls
@@ -260,10 +293,11 @@ def _experiment(system: System, model, config: SysidConfig, phases: NoProgressMe
                 progress, transcription, solver) -> SysidReport:
     """:func:`run_sysid`'s work, each phase announced on ``phases``."""
     sampling = dataclasses.replace(config.sampling, noise=config.noise)
+    noise = data_noise(system, config)
     held = max(3, config.trajectories // 3)
     sizes = (config.trajectories, held, held)
     phases.update(f"sampling {config.trajectories} + {held} + {held} trajectories (train, validation, test)")
-    dataset = make_dataset(system, sampling, trajectories=sizes, seed=config.seed)
+    dataset = _sample(system, sampling, noise, trajectories=sizes, seed=config.seed)
     phases.update("solving the true optimum (the plan's yardstick)")
     optimum = solve(system, transcription, solver, resimulate=False)
     theta, history, seconds = None, [], 0.0
@@ -276,15 +310,15 @@ def _experiment(system: System, model, config: SysidConfig, phases: NoProgressMe
             if around.shape[0] != dataset.intervals + 1:
                 raise ValueError("datasets in sequence need a planning grid equal to the data grid "
                                  f"({dataset.intervals} intervals); the plan has {around.shape[0] - 1}")
-            more = make_dataset(system, dataclasses.replace(sampling, controls="around"), trajectories=sizes,
-                                seed=config.seed + r, around=around)
+            more = _sample(system, dataclasses.replace(sampling, controls="around"), noise, trajectories=sizes,
+                           seed=config.seed + r, around=around)
             dataset = _merge(dataset, more)
             if config.polish is not None:  # the plan's own true trajectory, observed like the rest of the data
                 anchor = observe(system, sampling, around, seed=config.seed + r + 10**6)  # (its own noise draws)
                 anchors = anchor if anchors is None else _cat(anchors, anchor)
         t0 = time.perf_counter()
         if config.method == "least_squares":
-            ls = _least_squares_fit(model, dataset, theta, config.noise)
+            ls = _least_squares_fit(model, dataset, theta, config.noise, noise)
             theta = {k: jax.numpy.asarray(v) for k, v in ls.theta.items()}
             standard_errors = {k: float(v) for k, v in ls.standard_errors.items()}
             unidentifiable, status = tuple(ls.unidentifiable), "converged" if ls.converged else str(ls.status)
@@ -320,7 +354,7 @@ def _experiment(system: System, model, config: SysidConfig, phases: NoProgressMe
     return SysidReport(system=system.name, config=config, model=model, theta=theta, learned=learned, true=true,
                        standard_errors=standard_errors, unidentifiable=unidentifiable, fit_status=status,
                        fit_message=message, train_seconds=seconds, evaluation=evaluation, history=history,
-                       dataset=dataset, rounds=config.rounds, polish=tuple(polishes), reaim=aimed)
+                       dataset=dataset, rounds=config.rounds, polish=tuple(polishes), reaim=aimed, noise=noise)
 
 
 def failed(report: SysidReport) -> str | None:
