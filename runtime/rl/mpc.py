@@ -27,7 +27,7 @@ from ..transcriptions.nlp_parts import bounded_free_states, final_value_rows, gu
 from ..transcriptions.nominal_scales import control_scale, state_scale
 from .env import Env, EnvState
 
-__all__ = ["MPC", "MPCEpisode", "mismatched_params"]
+__all__ = ["MPC", "MPCEpisode", "mismatched_params", "perturbed"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +45,8 @@ class MPCEpisode:
         solve_seconds: wall time in the solver (compiling excluded).
         compile_seconds: time spent compiling (the first episode of a system only).
         wall_seconds: the whole episode.
+        theta: the true values of the spec's uncertain parameters in a randomised env (drawn at the reset), else
+            None.
     """
 
     cost: float
@@ -57,6 +59,7 @@ class MPCEpisode:
     solve_seconds: float
     compile_seconds: float
     wall_seconds: float
+    theta: np.ndarray | None = None
 
 
 def mismatched_params(env: Env, fraction: float, seed: int = 0) -> dict[str, Any]:
@@ -70,6 +73,32 @@ def mismatched_params(env: Env, fraction: float, seed: int = 0) -> dict[str, Any
     names = [n for n in (system.learnable or system.param_names) if n not in system.structural_params]
     signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=len(names))
     return {**p, **{n: p[n] * (1.0 + fraction * s) for n, s in zip(names, signs)}}
+
+
+def perturbed(env: Env, mismatch: float, obs_noise: float, seed: int = 0,
+              declared: bool = True) -> tuple[Env, dict | None, float]:
+    """What a perturbed MPC episode runs: ``(the env, the planner's parameters, the observation noise MPC.run
+    adds)``. The perturbations are the spec's declared uncertainty where it declares it (schema 3, ``declared``):
+
+    - ``mismatch`` > 0: on a spec with uncertain parameters the true ones are drawn at the reset from their declared
+      distributions (the env randomised; the planner keeps the nominal values); otherwise the planner's are
+      :func:`mismatched_params` (+-``mismatch``, signs from ``seed``) and the env keeps the nominal ones;
+    - ``obs_noise`` > 0: on a spec that declares noise the env steps with its process noise and observes with its
+      observation noise (what MPC sees); otherwise MPC.run adds ``obs_noise`` * scale * N(0, 1) to what it sees.
+
+    Schema 1 and 2 specs (or ``declared=False``) get the second branch of each: their episodes are unchanged. The
+    value of ``mismatch`` or ``obs_noise`` only switches the declared perturbation on: its size is the spec's.
+    """
+    system = env.system
+    draws = declared and mismatch > 0 and bool(getattr(system, "uncertain_params", ()))
+    noisy = declared and obs_noise > 0 and any(np.any(np.asarray(getattr(system, name, ()), np.float64) > 0)
+                                               for name in ("process_noise", "observation_noise"))
+    if draws or noisy:
+        scale = 1.0 if noisy else 0.0
+        env = Env(system, dataclasses.replace(env.options, randomize=draws, process_noise_scale=scale,
+                                              observation_noise_scale=scale))
+    params = mismatched_params(env, mismatch, seed) if mismatch > 0 and not draws else None
+    return env, params, 0.0 if noisy else obs_noise
 
 
 @program_cache(maxsize=None)
@@ -146,8 +175,10 @@ class MPC:
         self.env, self.replan_every, self.terminal = env, replan_every, terminal
         self.solver = Ipopt(tol=1e-8) if solver is None else solver
         penalty = env.options.penalty if terminal == "penalty" else 0.0
+        # The planner's model is the nominal, noise-free system whatever the env draws or adds.
         self.model = Env(env.system, dataclasses.replace(env.options, normalize_actions=False, max_steps=None,
-                                                         start_noise=0.0, penalty=penalty))
+                                                         start_noise=0.0, penalty=penalty, randomize=False,
+                                                         process_noise_scale=0.0, observation_noise_scale=0.0))
         if params is not None:
             check_structural_params(env.system, params)
         self.params = env.default_params(params).params
@@ -155,7 +186,8 @@ class MPC:
         # and with it IPOPT's compiled derivatives (the solver caches them per NLP object).
         self.nlp = _planning_nlp(self.model, terminal)
         # The closed loop plays the plan's controls themselves: the env with controls as actions, all else its own.
-        self._step = jax.jit(Env(env.system, dataclasses.replace(env.options, normalize_actions=False)).step_env)
+        self._loop = Env(env.system, dataclasses.replace(env.options, normalize_actions=False))
+        self._step = jax.jit(self._loop.step_env)
 
     def initial_plan(self) -> np.ndarray:
         """The cold start of the first plan: the transcriptions' default guess (mid-bounds, else 0), (N, m)."""
@@ -175,10 +207,11 @@ class MPC:
     def run(self, data: ProblemData, *, obs_noise: float = 0.0, seed: int = 0,
             first_plan: np.ndarray | None = None) -> MPCEpisode:
         """One closed-loop episode in the environment with ``data`` (``env.default_params(...)``: its true parameters
-        and x0).
+        and x0). In a randomised or noisy env (a schema 3 spec's uncertainty, :func:`perturbed`) the reset draws the
+        true parameters and the noise, and MPC sees the env's own (noisy) observations of the state.
 
         Args:
-            obs_noise: the observation noise's standard deviation per unit of state scale.
+            obs_noise: the observation noise's standard deviation per unit of state scale, added to what MPC sees.
             seed: the noise's seed (``numpy.random.default_rng``), and the reset's key.
             first_plan: the warm start of the first plan, (N, m) controls (default :meth:`initial_plan`).
         """
@@ -187,12 +220,14 @@ class MPC:
         rng = np.random.default_rng(seed)
         scale = state_scale(env.system)
         plan = self.initial_plan() if first_plan is None else np.asarray(first_plan, np.float64)
-        _, state = env.reset(jax.random.PRNGKey(seed), data)  # the key matters only with the env's start_noise
+        # The key matters only with the env's start_noise, drawn parameters or noise.
+        obs, state = self._loop.reset(jax.random.PRNGKey(seed), data)
+        n, observed = env.system.n_states, self._loop.observation_std is not None
         states, controls = [np.asarray(state.x)], []
         total, penalty, replans, failures, iterations, solve_s, compile_s = 0.0, 0.0, 0, 0, 0, 0.0, 0.0
         for k in range(N):
             if k % self.replan_every == 0:
-                x_seen = np.asarray(state.x, np.float64)
+                x_seen = np.asarray(obs[:n] if observed else state.x, np.float64)
                 if obs_noise > 0:
                     x_seen = x_seen + obs_noise * scale * rng.standard_normal(x_seen.shape)
                 new, result = self.plan(x_seen, k, plan)
@@ -202,10 +237,11 @@ class MPC:
                     plan = new
                 else:
                     failures += 1
-            _, state, reward, _, _, info = self._step(state, jnp.asarray(plan[k]), data)
+            obs, state, reward, _, _, info = self._step(state, jnp.asarray(plan[k]), data)
             total, penalty = total + float(reward), penalty + float(info["penalty"])
             states.append(np.asarray(state.x))
             controls.append(plan[k].copy())
         return MPCEpisode(cost=-total, controls=np.array(controls), states=np.array(states),
                           penalty=penalty, replans=replans, failures=failures, iterations=iterations,
-                          solve_seconds=solve_s, compile_seconds=compile_s, wall_seconds=time.perf_counter() - start)
+                          solve_seconds=solve_s, compile_seconds=compile_s, wall_seconds=time.perf_counter() - start,
+                          theta=None if state.theta is None else np.asarray(state.theta))

@@ -76,25 +76,27 @@ def test_the_noise_has_the_declared_covariance(system):
     assert omega[2 * N + 1, 2 * N + 1] > 5 * 0.02**2  # the process noise dominates at the end
 
 
-@pytest.mark.slow  # ~15 s: the compilations (sampling, the fit, Omega); 64 fits warm
+@pytest.mark.slow  # ~12 s: the compilations (sampling, the fit, Omega), then 160 fits warm
 def test_standard_errors_match_the_spread_over_repeated_datasets(system):
-    """64 datasets (seeds 0..63) of 4 trajectories: the standard deviation of the fitted k and c against the RMS of
-    the reported standard errors, within 3 of the sample standard deviation's relative standard error
-    1/sqrt(2 (R - 1)) = 0.089; the i.i.d. Gauss-Newton errors of the same fits are several times too small."""
-    noise, model, R = declared_noise(system), Parametric(system), 64
+    """160 datasets (seeds 0..159) of 4 trajectories: the standard deviation of the fitted k and c against the RMS
+    of the reported standard errors, within 3 of the sample standard deviation's relative standard error
+    1/sqrt(2 (R - 1)) = 0.056 (over 1000 seeds the ratios were 1.031 and 0.991); the i.i.d. Gauss-Newton errors of
+    the same fits (the first 16) are several times too small (ratio about 5)."""
+    noise, model, R = declared_noise(system), Parametric(system), 160
     fits, errors, iid = [], [], []
     for seed in range(R):
         data = noisy_dataset(system, Sampling(intervals=N), noise, trajectories=(4, 0, 0), seed=seed)
         fit = least_squares(model, data, noise=noise)
         assert fit.converged, fit.message
-        naive = least_squares(model, data, theta0=fit.theta, fit_starts=True)  # the same fit, i.i.d. errors
         fits.append([fit.theta["k"], fit.theta["c"]])
         errors.append([fit.standard_errors["k"], fit.standard_errors["c"]])
-        iid.append([naive.standard_errors["k"], naive.standard_errors["c"]])
+        if seed < 16:  # the same fit (from its solution), without the declared noise: i.i.d. errors
+            naive = least_squares(model, data, theta0=fit.theta, fit_starts=True)
+            iid.append([naive.standard_errors["k"], naive.standard_errors["c"]])
     spread = np.std(fits, axis=0, ddof=1)
     ratio = spread / np.sqrt(np.mean(np.square(errors), axis=0))
     assert np.all(abs(ratio - 1) <= 3 / np.sqrt(2 * (R - 1))), ratio
-    assert np.all(spread / np.sqrt(np.mean(np.square(iid), axis=0)) > 2)
+    assert np.all(spread / np.sqrt(np.mean(np.square(iid), axis=0)) > 3)
     assert np.all(abs(np.mean(fits, axis=0) - [2.0, 0.5]) < 4 * spread / np.sqrt(R))
 
 
