@@ -1,5 +1,6 @@
 """``sysid``: one system-identification experiment (:func:`~myriad.runtime.sysid.run.run_sysid`; the settings are
-:class:`~myriad.runtime.sysid.run.SysidConfig`'s fields) with the task's seed.
+:class:`~myriad.runtime.sysid.run.SysidConfig`'s fields) with the task's seed. On a schema 3 spec that declares its
+noise the data get that noise (``declared_noise``, default true), not the ``noise`` setting's.
 """
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ import dataclasses
 from typing import Any, ClassVar
 
 from ...learn.dataset import sampling_scales
-from ...sysid.run import SysidConfig
+from ...sysid.run import SysidConfig, data_noise
 from ...system import System
 from .base import AbstractKind, Outcome, refuse_unsupported
 
@@ -28,6 +29,7 @@ class Sysid(AbstractKind):
         if settings["model"] == "parametric" and not system.learnable:
             raise ValueError(f"sysid: {system.name} declares no learnable parameters; use model=node")
         config = self.config(settings, seed=0)
+        data_noise(system, config)  # the kit's noise on top of a spec's declared noise is refused before any work
         sampling_scales(system, dataclasses.replace(config.sampling, noise=config.noise))  # the bounds it needs
 
     def run(self, system: System, settings: dict[str, Any], seed: int) -> Outcome:

@@ -107,6 +107,16 @@ def test_a_sysid_needing_bounds_the_spec_lacks_is_refused_before_any_work(tmp_pa
     SweepConfig([str(spec)], ['sysid:noise=0.05,sampling={"noise_scale":"spread"}']).check_systems()
 
 
+def test_a_sysid_adding_noise_to_a_specs_declared_noise_is_refused_before_any_work():
+    spec = str(Path(__file__).resolve().parents[1] / "sysid" / "noisy_oscillator.yaml")  # schema 3, `noise:`
+    with pytest.raises(ValueError, match="declares its noise.*declared_noise=false"):
+        SweepConfig([spec], ["sysid:noise=0.05"]).check_systems()
+    SweepConfig([spec], ["sysid", 'sysid:noise=0.05,declared_noise=false,sampling={"noise_scale":"spread"}']
+                ).check_systems()
+    with pytest.raises(ValueError, match="declared expects true or false"):
+        SweepConfig([spec], ["mpc:declared=1"])
+
+
 def test_every_kind_and_backend_is_registered():
     import importlib
     import inspect
