@@ -59,8 +59,9 @@ class EnvOptions:
         action_bound: B > 0, the bound used on every unbounded side of a control ([-B, B] for a free control);
             required where a control is unbounded (default: :data:`DEFAULT_ACTION_BOUNDS`, Simple Case's 2).
         randomize: draw the spec's uncertain parameters from their distributions at every reset (domain
-            randomisation; README.md: uncertainty); False: the parameters given in the data (the spec's values by
-            default). Nothing to do for a spec without uncertain parameters.
+            randomisation; README.md: uncertainty). Opt-in: by default (False) the env runs on the parameters
+            given in the data (the spec's values by default), so declaring a range on a shipped spec leaves its
+            ``myriad/<Name>-v0`` env and every table played in it unchanged.
         widen: the factor on every uncertain parameter's spread about its distribution's centre (1: as declared,
             0: the centre; runtime/uncertainty/README.md).
         process_noise_scale: the factor on the spec's process noise sigma (0: deterministic dynamics).
@@ -75,7 +76,7 @@ class EnvOptions:
     penalty: float = 100.0
     normalize_actions: bool = True
     action_bound: float | None = None
-    randomize: bool = True
+    randomize: bool = False
     widen: float = 1.0
     process_noise_scale: float = 1.0
     observation_noise_scale: float = 1.0

@@ -45,7 +45,7 @@ def _final_states(env, n_paths, seed=0, chunk=1_000_000):
 
 @pytest.mark.parametrize("widen", [1.0, 2.0])
 def test_parameters_drawn_at_reset_match_their_distributions_without_recompiling(widen):
-    env = Env(four_parameters(), EnvOptions(steps=10, widen=widen))
+    env = Env(four_parameters(), EnvOptions(steps=10, widen=widen, randomize=True))
     reset = jax.jit(jax.vmap(env.reset, (0, None)))
     data = env.default_params()
     _, state = reset(jax.random.split(KEY, M), data)
@@ -57,7 +57,7 @@ def test_parameters_drawn_at_reset_match_their_distributions_without_recompiling
 
 def test_an_episode_runs_on_its_drawn_parameters_and_randomize_false_on_the_given_ones():
     system = four_parameters()
-    env = Env(system, EnvOptions(steps=10, normalize_actions=False))
+    env = Env(system, EnvOptions(steps=10, normalize_actions=False, randomize=True))
     data = env.default_params()
     _, state = env.reset(KEY, data)
     theta = np.asarray(state.theta)
@@ -152,7 +152,7 @@ def test_options_are_checked():
 @pytest.mark.filterwarnings("error")
 def test_a_randomised_noisy_env_passes_the_gymnasium_checker_and_seeds_reproduce_bits():
     system = four_parameters(process_noise=(0.0, 0.05), observation_noise=(0.01, 0.0))
-    env = rl.make(system, steps=20)
+    env = rl.make(system, steps=20, randomize=True)
     check_env(env)
     runs = []
     for seed in (3, 3, 4):
@@ -165,7 +165,7 @@ def test_a_randomised_noisy_env_passes_the_gymnasium_checker_and_seeds_reproduce
         runs.append(out)
     assert runs[0] == runs[1] and runs[0] != runs[2]
     assert set(info["params"]) == {"k", "c", "g", "m"} and env.episode_params["k"] == info["params"]["k"]
-    wrapped = gymnasium.make(env.spec.id, steps=20, widen=2.0)  # the passive checker on; an option as a keyword
+    wrapped = gymnasium.make(env.spec.id, steps=20, widen=2.0, randomize=True)  # passive checker on; keyword options
     wrapped.reset(seed=0)
     for _ in range(20):
         wrapped.step(wrapped.action_space.sample())
@@ -176,7 +176,7 @@ def test_a_randomised_noisy_env_passes_the_gymnasium_checker_and_seeds_reproduce
 
 
 def test_the_vector_env_draws_per_env_and_reproduces_with_its_seed():
-    envs = MyriadVectorEnv(four_parameters(), 4, steps=5)
+    envs = MyriadVectorEnv(four_parameters(), 4, steps=5, randomize=True)
     a, _ = envs.reset(seed=0)
     k = envs.episode_params["k"]
     b, _ = envs.reset(seed=0)
