@@ -237,6 +237,15 @@ def _sample(system: System, sampling: Sampling, noise: DeclaredNoise | None, **k
                                                                                          **kwargs)
 
 
+def _observe(system: System, sampling: Sampling, noise: DeclaredNoise | None, controls, seed: int) -> Trajectories:
+    """The true system's trajectory under ``controls`` from its x0 (the kit's :func:`observe`), under the declared
+    noise when there is one."""
+    if noise is None:
+        return observe(system, sampling, controls, seed)
+    exact = dataclasses.replace(sampling, controls="around", spread=0.0, x0_std=0.0, smooth=False)
+    return noisy_dataset(system, exact, noise, trajectories=(1, 0, 0), seed=seed, around=np.asarray(controls)).train
+
+
 def _least_squares_fit(model, dataset: Dataset, theta, noise: float, declared: DeclaredNoise | None = None):
     """Multiple shooting first (each window from an observed state: no blow-up from the guesses, no local minimum
     like Mountain Car's), then single shooting from there (honest standard errors on noisy data, declared noise's
@@ -314,7 +323,7 @@ def _experiment(system: System, model, config: SysidConfig, phases: NoProgressMe
                            seed=config.seed + r, around=around)
             dataset = _merge(dataset, more)
             if config.polish is not None:  # the plan's own true trajectory, observed like the rest of the data
-                anchor = observe(system, sampling, around, seed=config.seed + r + 10**6)  # (its own noise draws)
+                anchor = _observe(system, sampling, noise, around, seed=config.seed + r + 10**6)  # (own noise)
                 anchors = anchor if anchors is None else _cat(anchors, anchor)
         t0 = time.perf_counter()
         if config.method == "least_squares":
