@@ -14,12 +14,15 @@ import importlib.util
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from . import systems as _registry
 from .atomic import atomic_write_text
-from .system import System
 
-__all__ = ["load", "spec_build_dir", "PEER_PREFIX"]
+if TYPE_CHECKING:  # not imported: compiled_spec runs without JAX (the cold start's `myriad solve`, issue 31)
+    from .system import System
+
+__all__ = ["load", "compiled_spec", "spec_build_dir", "PEER_PREFIX"]
 
 PEER_PREFIX = "peers/"  # load("peers/goddard_rocket"): a problem of the peer collection (specs/peers/README.md)
 
@@ -63,23 +66,10 @@ def load(target: str | os.PathLike) -> System:
         from .systems import peers
 
         return peers.get(text[len(PEER_PREFIX):])
-    # The generated module depends on the spec's bytes, the compiler and the path it names (relative to the working
-    # folder where inside it): all in the key, so a module found under it is what compiling again would write.
-    where = f"{os.path.abspath(text)}\0{os.getcwd()}\0{_compiler_fingerprint()}"
-    key = hashlib.sha256(path.read_bytes() + where.encode()).hexdigest()
+    key = _spec_key(text)
     if key in _loaded:
         return _loaded[key]
-    folder = spec_build_dir() / key[:32]
-    built = sorted(folder.glob("*.py"))  # written atomically: a module there is whole
-    if len(built) == 1:
-        module_path = built[0]
-    else:
-        from myriad.compiler import compile_file  # the compiler (sympy) is only needed to compile a spec
-
-        compiled = compile_file(path)
-        module_path = folder / f"{compiled.name}.py"
-        folder.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(module_path, compiled.text)
+    module_path = compiled_spec(text, key)
     module_name = f"myriad_user_systems.{module_path.stem}_{key[:16]}"
     spec = importlib.util.spec_from_file_location(module_name, module_path)
     module = importlib.util.module_from_spec(spec)
@@ -87,6 +77,33 @@ def load(target: str | os.PathLike) -> System:
     spec.loader.exec_module(module)
     _loaded[key] = module.SYSTEM
     return module.SYSTEM
+
+
+def _spec_key(text: str) -> str:
+    # The generated module depends on the spec's bytes, the compiler and the path it names (relative to the working
+    # folder where inside it): all in the key, so a module found under it is what compiling again would write.
+    where = f"{os.path.abspath(text)}\0{os.getcwd()}\0{_compiler_fingerprint()}"
+    return hashlib.sha256(Path(text).read_bytes() + where.encode()).hexdigest()
+
+
+def compiled_spec(spec: str | os.PathLike, key: str | None = None) -> Path:
+    """The generated module of the spec file ``spec`` in :func:`spec_build_dir`, compiled there first unless it is
+    (what :func:`load` imports). Imports no JAX: a `myriad solve` runs it in a second process while it imports JAX.
+
+    Raises:
+        myriad.compiler.SpecError: the spec is invalid."""
+    text = os.fspath(spec)
+    folder = spec_build_dir() / (key or _spec_key(text))[:32]
+    built = sorted(folder.glob("*.py"))  # written atomically: a module there is whole
+    if len(built) == 1:
+        return built[0]
+    from myriad.compiler import compile_file  # the compiler (sympy) is only needed to compile a spec
+
+    compiled = compile_file(Path(text))
+    module_path = folder / f"{compiled.name}.py"
+    folder.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(module_path, compiled.text)
+    return module_path
 
 
 def _names() -> dict[str, str]:

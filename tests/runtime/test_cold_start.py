@@ -136,6 +136,39 @@ def test_a_spec_compiled_before_loads_without_the_compiler(tmp_path, monkeypatch
         loader.load(spec)
 
 
+def test_a_spec_compiles_beside_the_jax_import_and_load_finds_it(tmp_path, monkeypatch):
+    """`myriad solve SPEC.yaml` compiles the spec in a second process (no JAX imported there) while it imports JAX;
+    the module it writes is the one load() imports, and a bad spec there is load()'s to report."""
+    spec = tmp_path / "two_compartment_dosing.yaml"
+    spec.write_text(_DOSING)
+    monkeypatch.setenv("MYRIAD_CACHE", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    seen = _fresh(f"""
+import json, sys
+from myriad.runtime.loader import compiled_spec
+path = compiled_spec({str(spec)!r})
+print(json.dumps({{"path": str(path), "heavy": [m for m in {_HEAVY!r} if m in sys.modules and m != "sympy"]}}))
+""")
+    assert seen["heavy"] == []
+    aside = cli._compile_spec_aside(["solve", "--intervals", "10", str(spec)])
+    if aside is not None:  # one core: none is started
+        assert aside.wait(timeout=120) == 0
+    from myriad.runtime import loader
+
+    assert str(loader.compiled_spec(spec)) == seen["path"]
+    assert type(loader.load(spec)).__module__.startswith("myriad_user_systems.")
+    assert cli._compile_spec_aside(["solve", "pendulum"]) is None  # a name, not a file: nothing to compile
+
+
+def test_main_leaves_the_garbage_collector_of_its_caller_as_it_was():
+    import gc
+
+    before = gc.get_threshold(), gc.get_freeze_count()
+    with pytest.raises(SystemExit):
+        cli.main(["solve", "pendulum", "--no-such-flag"])
+    assert (gc.get_threshold(), gc.get_freeze_count()) == before
+
+
 _DOSING = """\
 schema: 1
 name: two_compartment_dosing
