@@ -7,6 +7,11 @@ environment (README.md in this folder: how each is measured).
     myriad rl-reference --check      # exit 1 when the shipped file is stale
 
 ``normalized_score(system, J) = 100 (J_random - J) / (J_random - J_optimal)``.
+
+A schema 3 spec that declares uncertain parameters gets one more part, ``uncertainty``: the expected env cost (mean
+and Monte Carlo standard error over fresh parameter draws) of the nominal plan (the certified optimum's controls) and
+of the robust plan (the mean over the spec's planning scenarios, :mod:`myriad.runtime.uncertainty.env_plans`), and
+their paired difference (:func:`expected_costs`). The score itself stays normalised against the nominal problem.
 """
 
 from __future__ import annotations
@@ -29,16 +34,18 @@ import numpy as np
 from ..loader import load
 from ..system import System
 from ..systems import NAMES
+from ..uncertainty.distributions import uncertain_spec
 from .env import Env, EnvOptions, play
 
-__all__ = ["FORMAT", "ENV_VERSION", "EPISODES", "SEED", "CACHE_ENV_VAR", "reference_env", "baseline_costs",
-           "env_settings", "compute", "reference_record", "reference_cache_dir", "cache_key", "reference_scores",
-           "normalized_score", "stale"]
+__all__ = ["FORMAT", "ENV_VERSION", "EPISODES", "SEED", "UNCERTAIN_DRAWS", "CACHE_ENV_VAR", "reference_env",
+           "baseline_costs", "expected_costs", "env_settings", "compute", "reference_record", "reference_cache_dir",
+           "cache_key", "reference_scores", "normalized_score", "stale"]
 
 FORMAT = 2  # of a record and of the JSON file; bump with a change of layout or of how a record is measured
 ENV_VERSION = 0  # the -v0 of the Gymnasium ids: bump both when the env's definition changes
 EPISODES = 100
 SEED = 0
+UNCERTAIN_DRAWS = 1000  # the parameter draws of the expected costs under a schema 3 spec's declared uncertainty
 CACHE_ENV_VAR = "MYRIAD_RL_REFERENCE_CACHE"  # a folder, else $MYRIAD_CACHE/rl-reference, else ~/.cache/myriad/...
 _FILE = "reference_scores.json"
 
@@ -117,6 +124,7 @@ def compute(target: System | str, options: EnvOptions | None = None) -> dict[str
         controls, certificate = certified_optimum(
             env, lambda j: max(abs(j), abs(base["random"] - j), np.finfo(np.float64).tiny))
         scores = baseline_costs(env.system, controls, options)
+        uncertainty = expected_costs(env, controls) if uncertain_spec(env.system)[0] else None
     name = env.system.name
     if not all(math.isfinite(v) for v in scores.values()):  # JSON has no NaN/inf, and a score needs both ends
         raise RuntimeError(f"{name}: a reference cost is not finite: {scores}")
@@ -129,7 +137,61 @@ def compute(target: System | str, options: EnvOptions | None = None) -> dict[str
         "optimal": {"cost": scores["optimal"], "certificate": certificate, "controls": controls.tolist()},
         "zero_control": {"cost": scores["zero_control"]},
         "random": {"cost": scores["random"], "std": scores["random_std"], "episodes": EPISODES, "seed": SEED},
+        **({"uncertainty": uncertainty} if uncertainty is not None else {}),
     }
+
+
+def _evaluation_seed(system: System) -> int:
+    """The key of the out-of-sample draws: 1, or 2 where the spec's robust seed (its planning scenarios) is 1."""
+    return 2 if int(getattr(system, "robust_seed", 0)) == 1 else 1
+
+
+def expected_costs(env: Env, optimal: Any) -> dict[str, Any]:
+    """Under a schema 3 spec's declared uncertainty: the expected env cost (J = -return, mean and Monte Carlo
+    standard error over :data:`UNCERTAIN_DRAWS` fresh parameter draws) of the nominal plan (``optimal``, the
+    certified optimum's controls) and of the robust plan (the held controls that minimise the mean cost over the
+    spec's planning scenarios, from the nominal plan: :func:`myriad.runtime.uncertainty.env_plans.scenario_plan`),
+    the paired difference, and the robust plan's controls. Float64 is the caller's (``jax.enable_x64``)."""
+    from ..uncertainty.env_plans import fresh_values, mean_and_error, plan_costs, scenario_plan
+    from ..uncertainty.scenarios import scenario_values
+
+    system, optimal = env.system, np.asarray(optimal, np.float64)
+    planning = scenario_values(system)
+    robust, result = scenario_plan(env, planning, optimal)
+    seed = _evaluation_seed(system)
+    draws = fresh_values(system, UNCERTAIN_DRAWS, seed)
+    c_nom, c_rob = plan_costs(env, optimal, draws), plan_costs(env, robust, draws)
+
+    def stats(c):
+        mean, se = mean_and_error(c)
+        return {"cost": mean, "se": se}
+
+    return {"draws": UNCERTAIN_DRAWS, "seed": seed, "scenarios": int(planning.shape[0]),
+            "nominal_plan": stats(c_nom),
+            "robust_plan": {**stats(c_rob), "converged": bool(result.success), "controls": robust.tolist()},
+            "robust_minus_nominal": stats(c_rob - c_nom)}
+
+
+def _stale_uncertainty(name: str, system: System, record: dict[str, Any], rtol: float) -> list[str]:
+    """What is stale in a record's expected costs under uncertainty: missing or present against the spec, or the
+    stored plans' Monte Carlo means replayed with today's code (the robust solve is not repeated)."""
+    from ..uncertainty.env_plans import fresh_values, mean_and_error, plan_costs
+
+    u, declared = record.get("uncertainty"), bool(uncertain_spec(system)[0])
+    if u is None:
+        return [f"{name}: the spec declares uncertainty and the record has no expected costs"] if declared else []
+    if not declared:
+        return [f"{name}: the record has expected costs under uncertainty, but the spec declares none"]
+    env = reference_env(system)
+    draws = fresh_values(system, u["draws"], u["seed"])
+    problems = []
+    for key, controls in (("nominal_plan", record["optimal"]["controls"]),
+                          ("robust_plan", u["robust_plan"]["controls"])):
+        with jax.enable_x64(True):
+            now = mean_and_error(plan_costs(env, np.asarray(controls, np.float64), draws))[0]
+        if not math.isclose(now, u[key]["cost"], rel_tol=rtol, abs_tol=rtol):
+            problems.append(f"{name}: {key} expected cost {now!r} != stored {u[key]['cost']!r}")
+    return problems
 
 
 def reference_cache_dir() -> Path:
@@ -161,7 +223,8 @@ def _cached(path: Path, env: Env) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     ok = isinstance(record, dict) and record.get("spec_sha256") == env.system.spec_sha256 \
-        and record.get("env") == env_settings(env)
+        and record.get("env") == env_settings(env) \
+        and ("uncertainty" in record) == bool(uncertain_spec(env.system)[0])  # one cached before the field: again
     return record if ok else None
 
 
@@ -213,6 +276,9 @@ def _dumps(doc: dict[str, Any]) -> str:
     for name, r in out["systems"].items():
         controls[name] = json.dumps(r["optimal"]["controls"])
         r["optimal"]["controls"] = f"@controls:{name}@"
+        if "uncertainty" in r:
+            controls[name + ":robust"] = json.dumps(r["uncertainty"]["robust_plan"]["controls"])
+            r["uncertainty"]["robust_plan"]["controls"] = f"@controls:{name}:robust@"
     text = json.dumps(out, indent=1)
     for name, c in controls.items():
         text = text.replace(f'"@controls:{name}@"', c)
@@ -284,6 +350,7 @@ def stale(doc: dict[str, Any] | None = None, names=NAMES, rtol: float = 1e-9) ->
                          ("random", r["random"]["cost"])):
             if not math.isclose(now[key], old, rel_tol=rtol, abs_tol=rtol):
                 problems.append(f"{name}: {key} cost {now[key]!r} != stored {old!r}")
+        problems += _stale_uncertainty(name, system, r, rtol)
     return problems
 
 
