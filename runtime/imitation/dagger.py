@@ -144,6 +144,11 @@ class _Dagger:
 
     def step(self, index: int) -> Step:
         obs, labels, weights = self._label(index)
+        # A rollout can leave the region where the dynamics are finite (Bacteria from a start near 0: exp(-x) of a
+        # negative state); its expert labels fail (weight 0), but 0 * a network's NaN output is NaN: such rows are
+        # zeroed as well as weighted 0, or one of them makes the whole refit's loss non-finite.
+        bad = ~(np.isfinite(obs).all(axis=1) & np.isfinite(labels).all(axis=1))
+        obs[bad], labels[bad], weights[bad] = 0.0, 0.0, 0.0
         rows = slice(self.count, self.count + obs.shape[0])
         for array, new in zip(self.buffer, (obs, labels, weights)):
             array[rows] = new

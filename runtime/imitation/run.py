@@ -55,8 +55,9 @@ class ImitateConfig:
             expert) or ``e2e`` (the end-to-end learner: the model's parameters through the planner, then its plan).
         demos: the number of optimal demonstrations (episodes).
         seed: every draw's: the demonstrations' starts, the network's initialisation, DAgger's rollouts.
-        start_noise: the demonstrations' (and DAgger's rollouts') start perturbation: x0 + start_noise * s * U(-1, 1);
-            None: 0.1, and 0 for ``e2e`` (Algorithm 2 plans from the spec's start).
+        start_noise: the demonstrations' start perturbation: x0 + start_noise * s * U(-1, 1); None: the method's
+            default (:attr:`starts`: 0.1, and 0 for ``e2e``: Algorithm 2 plans from the spec's start). Kept None
+            until used, so ``dataclasses.replace(config, method=...)`` gets the new method's default.
         held_out: the fraction of the demonstrations held out for early stopping.
         fit: the fit's settings (learning rate, epochs, patience, network; ``--set fit.epochs=...``).
         dagger: DAgger's schedule (iterations, rollouts, beta, beta_decay; ``--set dagger.iterations=...``).
@@ -81,8 +82,6 @@ class ImitateConfig:
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.start_noise is None:  # resolved here, so the record holds the value used
-            object.__setattr__(self, "start_noise", 0.0 if self.method == "e2e" else 0.1)
         if not isinstance(self.e2e, E2EConfig):
             raise ValueError(f"e2e must be an E2EConfig, got {type(self.e2e).__name__}")
         for name in ("demos", "score_episodes"):
@@ -95,8 +94,17 @@ class ImitateConfig:
             raise ValueError(f"held_out must be a fraction in (0, 1), got {self.held_out!r}")
         for name in ("start_noise", "mismatch", "noise"):
             value = getattr(self, name)
+            if name == "start_noise" and value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < np.inf:
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    @property
+    def starts(self) -> float:
+        """The start perturbation used: ``start_noise``, or the method's default where it is None."""
+        if self.start_noise is not None:
+            return float(self.start_noise)
+        return 0.0 if self.method == "e2e" else 0.1
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -127,7 +135,7 @@ class ImitationReport:
                         "demos": config.demos, "seed": config.seed, "status": self.status.value,
                         "message": self.message, **self.scores, "seconds": self.seconds, **self.counts,
                         "fit_epochs": len(self.fit_history), "dagger_history": [list(r) for r in self.history],
-                        "config": to_json(config)})
+                        "config": {**to_json(config), "start_noise": config.starts}})  # the value used
 
 
 def _finite(value: Any) -> Any:
@@ -142,22 +150,58 @@ def demonstrations(system: System, config: ImitateConfig, dataset: str | os.Path
                    final: bool = False):
     """The demonstrations' observations (E, N, d) and controls (E, N, m), in the env's units (module docstring);
     ``final``: the observations with the episodes' last node too, (E, N + 1, d)."""
+    obs, actions, _ = _demonstrations(system, config, dataset, final=final)
+    return obs, actions
+
+
+def usable(episodes) -> np.ndarray:
+    """(E,) whether each episode demonstrates the optimal policy: its plan converged (where the dataset records
+    the plans' status) and its observations, actions and return are finite. A plan that did not converge is no
+    demonstration: on Bacteria, starts near 0 (x0 = 1 +- 0.1 * its scale 10) leave the interior point's solve from
+    the default guess non-finite, and its controls drive the state below 0, where exp(-x) overflows: inf
+    observations, and a non-finite loss for any fit that sees them."""
+    ok = np.ones(len(episodes), bool)
+    status = episodes.info.get("plan_status")
+    if status is not None:
+        ok &= np.asarray([s == "converged" for s in status], bool)
+    for array in (episodes.observations, episodes.actions):
+        ok &= np.isfinite(array).reshape(len(episodes), -1).all(axis=1)
+    return ok & np.isfinite(episodes.returns)
+
+
+def _demonstrations(system: System, config: ImitateConfig, dataset: str | os.PathLike | None, *, final: bool):
+    """:func:`demonstrations`, and how many episodes were skipped as not :func:`usable` (drawn again past them:
+    the first ``demos`` usable episodes of the seed's sequence, so the same seed gives the same demonstrations)."""
     if dataset is not None:
         from ..datasets.storage import load_dataset
 
         episodes, _ = load_dataset(dataset, system)
-        if len(episodes) < config.demos:
-            raise ValueError(f"--dataset {dataset}: {len(episodes)} episodes, fewer than --demos {config.demos}")
+        good = np.flatnonzero(usable(episodes))
+        if good.size < config.demos:
+            raise ValueError(f"--dataset {dataset}: {good.size} usable episodes (converged, finite) of "
+                             f"{len(episodes)}, fewer than --demos {config.demos}")
     else:
         from ..datasets import Perturbation, collect
 
-        episodes = collect(system, "optimal", episodes=config.demos, seed=config.seed,
-                           options=EnvOptions(normalize_actions=False), perturb=Perturbation(start=config.start_noise))
-    obs, actions = episodes.observations[: config.demos, : None if final else -1], episodes.actions[: config.demos]
+        n = config.demos
+        for _ in range(4):  # episode e's start does not depend on how many are drawn: more episodes extend the sequence
+            episodes = collect(system, "optimal", episodes=n, seed=config.seed,
+                               options=EnvOptions(normalize_actions=False), perturb=Perturbation(start=config.starts))
+            good = np.flatnonzero(usable(episodes))
+            if good.size >= config.demos:
+                break
+            n += 2 * (config.demos - good.size) + 2
+        else:
+            raise ValueError(f"{system.name}: only {good.size} of {len(episodes)} optimal plans from starts "
+                             f"perturbed by start_noise {config.starts} converged, fewer than demos {config.demos}; "
+                             "lower --start-noise")
+    pick = good[: config.demos]
+    skipped = int(pick[-1] + 1 - config.demos)
+    obs, actions = episodes.observations[pick, : None if final else -1], episodes.actions[pick]
     if episodes.info["options"].get("normalize_actions", True):  # actions in [-1, 1]: the env's map onto the controls
         lo, hi = reference_env(system).control_bounds
         actions = lo + 0.5 * (np.clip(actions, -1.0, 1.0) + 1.0) * (hi - lo)
-    return np.asarray(obs, np.float64), np.asarray(actions, np.float64)
+    return np.asarray(obs, np.float64), np.asarray(actions, np.float64), skipped
 
 
 def _split(policy: Policy, obs: np.ndarray, controls: np.ndarray, fraction: float) -> tuple[Pairs, Pairs]:
@@ -189,7 +233,7 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
     sub = (lambda name: None) if checkpoint_dir is None else (lambda name: os.path.join(checkpoint_dir, name))
     seconds = {}
     t = time.perf_counter()
-    obs, controls = demonstrations(system, config, dataset, final=config.method == "e2e")
+    obs, controls, skipped = _demonstrations(system, config, dataset, final=config.method == "e2e")
     seconds["demonstrations"] = time.perf_counter() - t
     learn = _end_to_end if config.method == "e2e" else _cloned
     t = time.perf_counter()
@@ -200,6 +244,7 @@ def run_imitation(target: System | str | os.PathLike, config: ImitateConfig = Im
                    episodes=config.score_episodes)
     seconds["score"] = time.perf_counter() - t
     status, message = out.pop("status"), out.pop("message")
+    out["counts"] = {**out["counts"], "demonstrations_skipped": skipped}
     if status.success and not np.isfinite(scores["episode_return"]):  # finite losses, yet the policy overflows
         status, message = Stop.NON_FINITE, f"the policy's episode return is {scores['episode_return']}"
     return ImitationReport(system, config, status=status, message=message, scores=scores, seconds=seconds, **out)
