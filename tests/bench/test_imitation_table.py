@@ -114,7 +114,7 @@ def test_a_real_row_and_bc_from_dagger_is_bc(tmp_path):
 
     out = tmp_path / "t"
     tiny = ["--set", "fit.epochs=20", "--set", "dagger.iterations=1", "--set", "dagger.rollouts=1"]
-    te.main(["--systems", "simple_case", "--demos", "2", "--seeds", "0", "--methods", "bc", "dagger", "--progress",
+    te.main(["--systems", "simple_case", "--demos", "2", "--seeds", "0", "--methods", "bc", "dagger", "--skip-ppo",
           "--no-progress", "--json", f"{out}.json", "--markdown", f"{out}.md", "--png", f"{out}.png", *tiny])
     data = json.loads((tmp_path / "t.json").read_text())
     rows = {r["method"]: r for r in data["rows"]}
@@ -125,7 +125,7 @@ def test_a_real_row_and_bc_from_dagger_is_bc(tmp_path):
     assert rows["dagger"]["normalized_score"] >= rows["bc"]["normalized_score"]  # the best iterate, BC's included
     b = data["baselines"]["simple_case"]
     assert b["optimum"]["score"] == 100.0 and b["optimum"]["agreement"] <= b["optimum"]["tolerance"]
-    assert b["mpc"]["score"] > 99.0
+    assert b["mpc"]["score"] > 99.0 and "ppo" not in b  # --skip-ppo: left for a later run (minutes a seed)
     assert (tmp_path / "t.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "| Simple Case | optimum | 100 by definition: J* = -1.3543487;" in (tmp_path / "t.md").read_text()
 
