@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import importlib
 import time
-from typing import Any, ClassVar, Literal, Mapping, final
+from typing import Any, Callable, ClassVar, Literal, Mapping, final
 
 import jax
 import jax.numpy as jnp
@@ -115,14 +116,16 @@ class Ipopt(AbstractNLPSolver):
 
     def solve(self, nlp: NLP, data: Any, z0: Any = None) -> NLPResult:
         require_float64("Ipopt.solve")
-        import cyipopt  # here, not at the top: its import costs every solve by another solver about 0.35 s
         exact = self.hessian == "exact"
         fns = cached(nlp, ("ipopt", exact),
                      lambda: _Derivatives(ScaledProblem.from_nlp(nlp), nlp.jacobian_sparsity, exact))
         problem = fns.problem
         data = canonical_data(data)
         w0 = problem.to_w(initial_point(nlp, data, z0))
-        compile_seconds = fns.prepare(w0, data, exact)
+        # cyipopt imported here, not at the top (0.35 s that every other solver's solve would pay), and while XLA
+        # compiles this solve's programs
+        compile_seconds = fns.prepare(w0, data, exact, meanwhile=lambda: importlib.import_module("cyipopt"))
+        import cyipopt
 
         callbacks = _Callbacks(fns, w0, data, exact)
         ipopt = cyipopt.Problem(
@@ -269,13 +272,14 @@ class _Derivatives:
         """Example arguments of ``self.staged`` (its signature; a point call's own objective factor and multipliers)."""
         return w0, np.float64(1.0), np.zeros(self.problem.n_constraints), data, np.bool_(False)
 
-    def prepare(self, w0: np.ndarray, data: Any, exact: bool) -> float:
-        """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached)."""
+    def prepare(self, w0: np.ndarray, data: Any, exact: bool, meanwhile: Callable[[], Any] | None = None) -> float:
+        """Compile everything for the signature of ``(w0, data)``; returns the seconds spent (0 when cached).
+        ``meanwhile``: the caller's work done while XLA compiles (:func:`~myriad.runtime.compilation.compile_many`)."""
         if self.shared:
             jobs = [(self.staged, self.staged_args(w0, data))]
         else:
             jobs = ([(self.hvps, self.hvp_args(w0, data))] if exact else []) + [(self.point, (w0, data))]
-        seconds = compile_many(jobs)
+        seconds = compile_many(jobs, meanwhile)
         if exact and self.hessian_structure is None:
             start = time.perf_counter()
             self._detect_hessian(w0, data)

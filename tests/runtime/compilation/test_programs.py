@@ -142,6 +142,22 @@ def test_a_second_process_traces_nothing(tmp_path, solver):
     assert second == {**first, "calls": 0}  # bit for bit the same solve, simulation and error estimate
 
 
+def test_compile_many_does_the_callers_work_while_xla_compiles_and_once_when_all_are_cached():
+    import threading
+
+    from myriad.runtime.compilation import CompiledFunction, compile_many
+
+    calls, one = [], CompiledFunction(lambda x: 2.0 * x)
+
+    def meanwhile():  # in the caller's thread, while the program is not yet compiled
+        calls.append((threading.current_thread() is threading.main_thread(), one.is_compiled(np.ones(3))))
+
+    assert compile_many([(one, (np.ones(3),))], meanwhile) > 0.0
+    np.testing.assert_array_equal(one(np.ones(3)), 2.0 * np.ones(3))
+    assert compile_many([(one, (np.ones(3),))], meanwhile) == 0.0  # cached: the work is still done, once
+    assert calls == [(True, False), (True, True)]
+
+
 def test_compiler_options_reach_every_compile_and_change_no_value():
     """`myriad bench` compiles at XLA's backend optimisation level 0: the options reach both compile paths (a bad one
     is refused by XLA), and the solve gives the same optimum to rounding."""
