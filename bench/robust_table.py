@@ -173,16 +173,17 @@ def markdown(rows: list[dict], config: RobustTableConfig) -> str:
              f"out-of-sample draws, seed {config.seed}; MPC: the first {config.mpc_episodes}, re-planning every "
              f"{config.replan_every} steps on the nominal parameters). Lower is better.", "",
              "| system | uncertain | S | nominal plan | robust plan | robust - nominal (paired) | MPC | "
-             "MPC failed re-plans | s |", "|---|---|---|---|---|---|---|---|---|"]
+             "MPC - robust (paired) | MPC failed re-plans | s |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            lines.append(f"| {r['system']} | error: {r['error']} |  |  |  |  |  |  |  |")
+            lines.append(f"| {r['system']} | error: {r['error']} |  |  |  |  |  |  |  |  |")
             continue
         unc = ", ".join(f"{n} {k} {a}" for n, (k, a) in r["uncertain"].items())
         mpc = r.get("mpc")
         lines.append(f"| {r['system']} | {unc} | {r['scenarios']} | {_pm(r['nominal_plan'])} | "
                      f"{_pm(r['robust_plan'])} | {_pm(r['robust_minus_nominal'], 3)} | {_pm(mpc)} | "
-                     f"{mpc['failed_replans'] if mpc else '-'} | {r['seconds']:.0f} |")
+                     f"{_pm(mpc and mpc['mpc_minus_robust'], 3)} | {mpc['failed_replans'] if mpc else '-'} | "
+                     f"{r['seconds']:.0f} |")
     lines += ["", "In sample (the mean over the S planning scenarios: the robust plan minimises it) and at the nominal "
               "parameters (the nominal plan minimises that):", "",
               "| system | nominal plan, in sample | robust plan, in sample | nominal plan, at nominal | "
