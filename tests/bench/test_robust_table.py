@@ -22,8 +22,8 @@ def expected(v):  # E J(v) = (w + E b^2) v^2 - 2 E b v + 1 under U(0.5, 1.5)
 
 def test_a_row_has_the_closed_form_expected_costs(tmp_path):
     out, md = tmp_path / "robust.json", tmp_path / "robust.md"
-    assert rt.main(["--systems", SPEC, "--steps", "3", "--draws", "1000", "--mpc-episodes", "2", "--seed", "5",
-                    "--json", str(out), "--markdown", str(md)]) == 0
+    assert rt.main(["--systems", SPEC, "--steps", "3", "--samples", "0", "--draws", "1000", "--mpc-episodes", "2",
+                    "--seed", "5", "--json", str(out), "--markdown", str(md)]) == 0
     row = json.loads(out.read_text())["rows"][0]
     with jax.enable_x64(True):
         planning = scenario_values(load(SPEC))[:, 0]  # the spec's 16 planning draws (robust_seed 0)
