@@ -68,6 +68,11 @@ def _one(args) -> int:
           f"(tolerance {c['tolerance']:g}; {c['costs']})\n"
           f"  zero control {r['zero_control']['cost']:.12g}\n"
           f"  random {r['random']['cost']:.12g} +- {r['random']['std']:.3g} ({r['random']['episodes']} episodes)")
+    if "uncertainty" in r:  # a schema 3 spec with uncertain parameters: expected costs under their distributions
+        u = r["uncertainty"]
+        print(f"  under the declared uncertainty ({u['draws']} draws): nominal plan {u['nominal_plan']['cost']:.8g} "
+              f"+- {u['nominal_plan']['se']:.2g}, robust plan ({u['scenarios']} scenarios) "
+              f"{u['robust_plan']['cost']:.8g} +- {u['robust_plan']['se']:.2g}")
     if args.json:
         atomic_write_text(args.json, json.dumps(r, indent=1) + "\n")
     return 0
