@@ -7,6 +7,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import pytest
 
 from bench import robust_table as rt
 from myriad.runtime import load
@@ -20,6 +21,7 @@ def expected(v):  # E J(v) = (w + E b^2) v^2 - 2 E b v + 1 under U(0.5, 1.5)
     return (W + 1.0 + 1.0 / 12.0) * v * v - 2.0 * v + 1.0
 
 
+@pytest.mark.slow  # about 15 s under load: IPOPT's and MPC's programs compiled
 def test_a_row_has_the_closed_form_expected_costs(tmp_path):
     out, md = tmp_path / "robust.json", tmp_path / "robust.md"
     assert rt.main(["--systems", SPEC, "--steps", "3", "--samples", "0", "--draws", "1000", "--mpc-episodes", "2",
