@@ -7,11 +7,11 @@ automatic reset) is in README.md in this folder.
     obs, state = env.reset(key, params)
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
-A spec that declares uncertainty (schema 3) makes a randomised, stochastic env: ``reset`` draws the uncertain
-parameters from their distributions with its key (data, not a recompile), the dynamics carry the declared process
-noise (a stochastic scheme on the env's grid) and the observations the declared observation noise; the options
-``randomize``, ``widen``, ``process_noise_scale`` and ``observation_noise_scale`` turn each off or scale it. Without
-any of it the env is the deterministic one, step for step and bit for bit.
+A spec that declares uncertainty (schema 3) makes a randomised, stochastic env: with ``randomize=True`` (opt-in)
+``reset`` draws the uncertain parameters from their distributions with its key (data, not a recompile), the dynamics
+carry the declared process noise (a stochastic scheme on the env's grid) and the observations the declared
+observation noise; ``widen``, ``process_noise_scale`` and ``observation_noise_scale`` scale each (0 turns the noise
+off). Without any of it the env is the deterministic one, step for step and bit for bit.
 """
 
 from __future__ import annotations

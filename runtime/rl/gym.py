@@ -87,9 +87,10 @@ def _drawn(env: Env, state: Any) -> dict[str, np.ndarray]:
 class MyriadEnv(gymnasium.Env):
     """One system as a Gymnasium environment.
 
-    A spec with uncertainty (schema 3) is randomised at every ``reset`` (its drawn parameters in the reset's
-    ``info["params"]`` and :attr:`episode_params`) and noisy as declared; the options ``randomize``, ``widen``,
-    ``process_noise_scale`` and ``observation_noise_scale`` control it (README.md in this folder: uncertainty).
+    A spec with uncertainty (schema 3) is noisy as declared and, with ``randomize=True`` (opt-in), randomised at
+    every ``reset`` (its drawn parameters in the reset's ``info["params"]`` and :attr:`episode_params`); the options
+    ``randomize``, ``widen``, ``process_noise_scale`` and ``observation_noise_scale`` control it (README.md in this
+    folder: uncertainty).
 
     Args:
         system: a shipped name, a spec path or a :class:`~myriad.runtime.system.System`.
