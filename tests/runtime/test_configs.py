@@ -46,7 +46,8 @@ COMMANDS = {
         "model": "node", "method": "adam", "trajectories": "5", "rounds": "2", "noise": "0.01", "seed": "3",
         "hidden": ("[8, 8]", ["--hidden", "8", "8"], []), "activation": "relu", "fit": '{"epochs": 5}',
         "refit": '{"epochs": 7}', "sampling": '{"intervals": 50}', "reaim": "2", "epochs": "50",
-        "polish": ("null", ["--polish", "0"], ["--model", "node"]), "max_param_error": "0.1", "max_gap": "0.2"}),
+        "polish": ("null", ["--polish", "0"], ["--model", "node"]), "max_param_error": "0.1", "max_gap": "0.2",
+        "declared_noise": "false"}),
     "e2e": (E2EConfig, ["e2e", "cancer_treatment"], e2e_config, {
         "model": "node", "adjoint": ("implicit", ["--gradient", "implicit"], []), "iterations": "5",
         "optimizer": "0.05", "reset_every": "3", "loss": "states", "on_failure": "skip",
