@@ -146,15 +146,14 @@ def test_schema1_modules_unchanged():
     """Every shipped schema 1 spec compiles to the committed bytes (no schema 2 attribute is written into them)."""
     result = build(ALL_SPECS, DEFAULT_OUT, check=True)
     assert result.ok, result.diffs[:1]
-    text = (DEFAULT_OUT / "van_der_pol.py").read_text(encoding="utf-8")
+    text = (DEFAULT_OUT / "harvest.py").read_text(encoding="utf-8")  # van_der_pol is schema 3 now
     assert "path_" not in text and "free_horizon" not in text
 
 
 def test_schema1_problem_restated_as_schema2_is_the_same_problem(tmp_path):
     """`schema: 2` without the new fields: the same functions; the new attributes say "none", like the defaults."""
-    src = (ROOT / "specs" / "van_der_pol.yaml").read_text(encoding="utf-8")
-    one, two = compile_spec(src, "van_der_pol.yaml"), compile_spec(src.replace("schema: 1", "schema: 2"),
-                                                                  "van_der_pol.yaml")
+    src = (ROOT / "specs" / "harvest.yaml").read_text(encoding="utf-8")
+    one, two = compile_spec(src, "harvest.yaml"), compile_spec(src.replace("schema: 1", "schema: 2"), "harvest.yaml")
     assert one.data.functions == two.data.functions
     extra = dict(two.data.metadata).keys() - dict(one.data.metadata).keys()
     assert extra == {"free_horizon", "horizon_bounds", "horizon_guess", "path_constraint_names",
