@@ -13,8 +13,9 @@ with commas:
   ``python -m`` module must exist, and any other program must be on the PATH.
 
 How blocks run: each in a fresh folder laid out like a clone's root (``specs/`` linked), with ``.venv/bin`` first on
-the PATH (what ``source .venv/bin/activate`` does) and the spec cache inside the folder; a yaml block whose first
-line names a file (``# my_oscillator.yaml``) is written there as that file first. sh blocks run with ``bash -e``,
+the PATH (what ``source .venv/bin/activate`` does) and one cache folder for all blocks (``caches``); a yaml block
+whose first line names a file (``# my_oscillator.yaml``) is written there as that file first. sh blocks run with
+``bash -e``,
 python blocks in a new interpreter (so without the test suite's float64 setting: the examples must set what they
 need themselves).
 """
@@ -150,20 +151,28 @@ def workdir(tmp_path):
     return tmp_path
 
 
-def _env(workdir: Path) -> dict:
+@pytest.fixture(scope="module")
+def caches(tmp_path_factory) -> Path:
+    """One cache folder for every block, as a reader running the README top to bottom has (~/.cache/myriad): the
+    specs compiled by path, the reference scores certified, and JAX's compilation cache, which the `myriad` commands
+    turn on by default (the suite's MYRIAD_JAX_CACHE=off is for in-process tests)."""
+    return tmp_path_factory.mktemp("myriad-cache")
+
+
+def _env(caches: Path) -> dict:
     return dict(os.environ, PATH=f"{VENV_BIN}{os.pathsep}{os.environ.get('PATH', '')}",
-                MYRIAD_CACHE=str(workdir / ".cache"), PYTHONDONTWRITEBYTECODE="1")
+                MYRIAD_CACHE=str(caches), MYRIAD_JAX_CACHE=str(caches / "jax"), PYTHONDONTWRITEBYTECODE="1")
 
 
 @pytest.mark.parametrize("chain", _params(_units()))
-def test_block_runs_as_written(chain: list[Block], workdir):
+def test_block_runs_as_written(chain: list[Block], workdir, caches):
     first = chain[0]
     if first.lang == "python":
         (workdir / "example.py").write_text("".join(b.text for b in chain), encoding="utf-8")
         argv = [sys.executable, "example.py"]
     else:
         argv = ["bash", "-e", "-c", first.text]
-    run = subprocess.run(argv, cwd=workdir, env=_env(workdir), capture_output=True, text=True,
+    run = subprocess.run(argv, cwd=workdir, env=_env(caches), capture_output=True, text=True,
                          timeout=900 if first.slow else 180)
     assert run.returncode == 0, f"README.md:{first.line} ({first.lang}) failed:\n{run.stdout}\n{run.stderr}"
     for text in (run.stdout, run.stderr):
