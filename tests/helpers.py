@@ -18,3 +18,26 @@ def sample_interval(lo, hi, centre, rng, n):
     hi = centre + 2 * width if math.isinf(hi) else hi
     pad = 1e-3 * (hi - lo)
     return rng.uniform(lo + pad, hi - pad, size=n) if hi > lo else np.full(n, lo)
+
+
+class CompileCounter:
+    """Counts XLA backend compilations while active (JAX's monitoring events), for tests that a program compiles once
+    and is reused."""
+
+    def __init__(self):
+        self.events: list[str] = []
+
+    def _listener(self, event, duration, **kwargs):
+        if "backend_compile" in event:
+            self.events.append(event)
+
+    def __enter__(self):
+        import jax
+
+        jax.monitoring.register_event_duration_secs_listener(self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        import jax
+
+        jax.monitoring.unregister_event_duration_listener(self._listener)

@@ -21,6 +21,8 @@ from myriad.runtime.nlp import NLP
 from myriad.runtime.solvers import InteriorPoint
 from myriad.runtime.solvers.base import canonical_data
 
+from ...helpers import CompileCounter
+
 pytestmark = pytest.mark.slow  # not in `make test-fast`: about twenty programs of a small NLP compiled
 
 jax.config.update("jax_enable_x64", True)
@@ -44,23 +46,6 @@ def wachter_biegler() -> NLP:
 def wb_data(a, b, start=(-2.0, 1.0, 1.0)):
     return {"params": {"a": np.float64(a), "b": np.float64(b)}, "x0": np.asarray(start, dtype=np.float64)}
 
-
-class CompileCounter:
-    """Counts XLA backend compilations while active (as tests/runtime/solvers/test_pure_solvers.py)."""
-
-    def __init__(self):
-        self.events: list[str] = []
-
-    def _listener(self, event, duration, **kwargs):
-        if "backend_compile" in event:
-            self.events.append(event)
-
-    def __enter__(self):
-        jax.monitoring.register_event_duration_secs_listener(self._listener)
-        return self
-
-    def __exit__(self, *exc):
-        jax.monitoring.unregister_event_duration_listener(self._listener)
 
 
 RESTORES = [wb_data(1.0, 0.5), wb_data(-1.0, -1.0)]

@@ -21,6 +21,8 @@ from myriad.runtime.solvers import SLSQP, SOLVERS, AbstractPureSolver, Extragrad
 from myriad.runtime.status import Status
 from myriad.runtime.transcriptions import Trapezoidal
 
+from ...helpers import CompileCounter
+
 jax.config.update("jax_enable_x64", True)
 
 SYSTEM = "mould_fungicide"
@@ -33,23 +35,6 @@ def problem():
     system = load(SYSTEM)
     return system, TRANSCRIPTION.transcribe(system), default_data(system)
 
-
-class CompileCounter:
-    """Counts XLA backend compilations while active (the same listener as tests/runtime/test_solve.py)."""
-
-    def __init__(self):
-        self.events: list[str] = []
-
-    def _listener(self, event, duration, **kwargs):
-        if "backend_compile" in event:
-            self.events.append(event)
-
-    def __enter__(self):
-        jax.monitoring.register_event_duration_secs_listener(self._listener)
-        return self
-
-    def __exit__(self, *exc):
-        jax.monitoring.unregister_event_duration_listener(self._listener)
 
 
 # ---- differentiation -------------------------------------------------------------------------------------------------

@@ -34,6 +34,8 @@ from myriad.runtime.transcriptions import (
 from myriad.runtime.uncertainty import distributions as D
 from myriad.runtime.uncertainty import robust as R
 
+from ... import helpers
+
 EXAMPLE = Path(__file__).resolve().parents[2] / "compiler" / "schema3" / "uncertain_oscillator.yaml"
 TIGHT = Ipopt(tol=1e-12)
 
@@ -269,12 +271,11 @@ def test_a_free_final_time_on_every_transcription(tmp_path):
         assert worst.final_time == pytest.approx(108 ** 0.25, rel=2e-2), tr.label  # the continuous T*, w = 3
 
 
-class CompileCounter:
-    """Counts XLA backend compilations while active (as tests/runtime/solvers/test_pure_solvers.py), and names each
-    compiled program (JAX's compile log)."""
+class CompileCounter(helpers.CompileCounter):
+    """tests/helpers.py's counter that also names each compiled program (JAX's compile log)."""
 
     def __init__(self):
-        self.events: list[str] = []
+        super().__init__()
         self.names: list[str] = []
         self._handler = logging.Handler()
         self._handler.emit = self._record
@@ -284,20 +285,15 @@ class CompileCounter:
         if match:
             self.names.append(match.group(1))
 
-    def _listener(self, event, duration, **kwargs):
-        if "backend_compile" in event:
-            self.events.append(event)
-
     def __enter__(self):
-        jax.monitoring.register_event_duration_secs_listener(self._listener)
         logging.getLogger("jax").addHandler(self._handler)
         jax.config.update("jax_log_compiles", True)
-        return self
+        return super().__enter__()
 
     def __exit__(self, *exc):
         jax.config.update("jax_log_compiles", False)
         logging.getLogger("jax").removeHandler(self._handler)
-        jax.monitoring.unregister_event_duration_listener(self._listener)
+        super().__exit__(*exc)
 
 
 def _drawn(S: int):
