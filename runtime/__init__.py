@@ -25,16 +25,18 @@ _SOURCES = {
     **dict.fromkeys(("OptimalControlUnavailable", "System", "UnsupportedFeature"), "system"),
     **dict.fromkeys(("HermiteSimpson", "MultipleShooting", "SingleShooting", "Trapezoidal"), "transcriptions"),
     "ForwardBackwardSweep": "indirect",
+    "clear_caches": "compilation.caches",
 }
 
 __all__ = [
     "load", "solve", "solve_batch", "simulate", "Solution", "System", "OptimalControlUnavailable", "UnsupportedFeature",
     "Euler", "Heun", "Midpoint", "RK4", "Adaptive",
     "SingleShooting", "MultipleShooting", "Trapezoidal", "HermiteSimpson", "ForwardBackwardSweep",
-    "Ipopt", "SLSQP", "Extragradient", "InteriorPoint", "METHODS", "SolveConfig",
+    "Ipopt", "SLSQP", "Extragradient", "InteriorPoint", "METHODS", "SolveConfig", "clear_caches",
 ]
 
 if TYPE_CHECKING:  # what type checkers and editors see; at run time __getattr__ imports each name on first use
+    from .compilation.caches import clear_caches
     from .indirect import ForwardBackwardSweep
     from .integrators import RK4, Adaptive, Euler, Heun, Midpoint
     from .loader import load
