@@ -51,6 +51,9 @@ class NLP:
         stage_derivatives, stage_index: optional, with ``lagrangian_derivatives``: the same derivatives with the
             Hessian left as the rollout's stages (:class:`~myriad.runtime.transcriptions.staged.Stages`), step ``k``
             reading the decisions ``z[stage_index[k]]``; for a stage-wise (Riccati) Newton step.
+        stage_structure: optional :class:`~myriad.runtime.transcriptions.stage_structure.StageStructure`, the stage
+            of every variable and row of a transcription that is a chain of stages (collocation, multiple shooting),
+            for a block-banded Newton step and derivatives by stage; None: no such structure (dense).
         key: what the functions depend on, as text (a spec-generated system's source and a transcription's
             configuration; :func:`~myriad.runtime.transcriptions.transcribe` sets it), so that their traced
             programs may be kept on disk for later processes (:mod:`~myriad.runtime.compilation.programs`); None:
@@ -72,6 +75,7 @@ class NLP:
     lagrangian_derivatives: Callable[[Any, Any, Data], tuple[Any, Any, Any, Any, Any]] | None = None
     stage_derivatives: Callable[[Any, Any, Data], tuple[Any, Any, Any, Any, Any]] | None = None
     stage_index: np.ndarray | None = None
+    stage_structure: Any = None
     key: str | None = None
 
     def evaluate(self, z: Any, data: Data) -> tuple[Any, Any]:

@@ -34,6 +34,7 @@ from .nlp_parts import (
     sparsity,
 )
 from .nominal_scales import control_scale, state_scale
+from .stage_structure import collocation_structure
 
 __all__ = ["AbstractTranscription", "Transcribed", "TrajectoryFn", "path_violation", "transcribe"]
 
@@ -258,6 +259,8 @@ class Transcribed:
             N, controls, controls, objective=self.objective, constraints=self.constraints,
             initial_guess=self.initial_guess_of(self.times[1:], controls), unravel=self.unravel,
             jacobian_sparsity=sparsity(blocks), name=self.name(f"N={N}"),
+            stage_structure=collocation_structure(N, self.n, self.m, self.fixed.size, self.system.n_path,
+                                                  self.T_lo.size, midpoints),
         )
 
     def node_nlp(self, nodes: int, controls: int, path_points: int, **functions) -> NLP:

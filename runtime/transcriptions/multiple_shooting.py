@@ -15,6 +15,7 @@ from ..system import System
 from .base import AbstractTranscription, Transcribed
 from .grid import Grid, check_grid, grid_argument, node_times
 from .nlp_parts import path_rows, sparsity
+from .stage_structure import multiple_shooting_structure
 
 __all__ = ["MultipleShooting"]
 
@@ -196,4 +197,6 @@ class _Transcribed(Transcribed):
             jacobian_sparsity=sparsity(self.sparsity_blocks(self.T_lo.size)),
             name=self.name(f"M={self.M}, S={self.S}, {type(self.method.integrator).__name__}"),
             objective_and_constraints=self.objective_and_constraints,
+            stage_structure=multiple_shooting_structure(self.M, self.S, self.n, self.m, self.fixed.size,
+                                                        self.system.n_path, self.T_lo.size),
         )
