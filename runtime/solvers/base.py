@@ -117,6 +117,8 @@ class ScaledProblem:
     # w[stage_index[k]]; or None.
     stages: Callable[[Any, Any, Any], tuple] | None = None
     stage_index: np.ndarray | None = None
+    # The stage of each variable and row (NLP.stage_structure: collocation, multiple shooting), or None.
+    stage_structure: Any = None
 
     @classmethod
     def from_nlp(cls, nlp: NLP) -> "ScaledProblem":
@@ -147,6 +149,7 @@ class ScaledProblem:
             stages=None if nlp.stage_derivatives is None else _scaled_stages(nlp.stage_derivatives, s,
                                                                              nlp.stage_index),
             stage_index=None if nlp.stage_derivatives is None else np.asarray(nlp.stage_index),
+            stage_structure=nlp.stage_structure,
         )
 
     @property

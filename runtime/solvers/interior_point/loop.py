@@ -188,9 +188,10 @@ class InteriorPointStepper:
         self.scale = jnp.asarray(layout.problem.scale)
         self.mu_min = tol / 10.0
         self.restoration = RestorationPhase(layout, tol, constr_viol_tol, self.mu_min)
-        # The Newton system: dense (kkt.py) or stage by stage (riccati.py), one interface.
+        # The Newton system: dense (kkt.py) or stage by stage (riccati.py, banded.py), one interface.
+        structured = layout.riccati or layout.banded
         self.factorize_with_inertia, self.newton_solve = (
-            (layout.riccati.factorize_with_inertia, layout.riccati.solve) if layout.riccati
+            (structured.factorize_with_inertia, structured.solve) if structured
             else (kkt.factorize_with_inertia, kkt.solve))
         self.stepper = Stepper(self.begin, self.step, self.running, self.end)
         # The same solve in two programs, the second compiled only where a solve needs the restoration phase (about

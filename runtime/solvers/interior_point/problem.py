@@ -22,6 +22,7 @@ import numpy as np
 from ..base import ScaledProblem, split_constraints
 from .kkt import uses_nullspace
 from .riccati import Riccati, StageHessian, chain
+from .stage_problem import StageProblem
 
 __all__ = ["Layout", "Point"]
 
@@ -73,6 +74,11 @@ class Layout:
             raise ValueError("InteriorPoint(kkt='riccati'): the NLP has no stage-wise derivatives whose steps read "
                              "the decisions as a chain (single shooting without path rows, slacks or free time)")
         self.riccati = Riccati(problem.stage_index, self.n, self.n_s) if kkt == "riccati" else None
+        if kkt == "banded" and not StageProblem.applies(problem):
+            raise ValueError("InteriorPoint(kkt='banded'): the NLP has no stage structure (collocation and multiple "
+                             "shooting have one; single shooting takes kkt='riccati' or 'dense')")
+        self.stage = StageProblem(self) if kkt == "banded" else None
+        self.banded = self.stage.banded if self.stage is not None else None
 
     @staticmethod
     def stagewise(problem: ScaledProblem) -> bool:
@@ -104,7 +110,12 @@ class Layout:
     def scaling(self, grad_f: jax.Array, jac_c: jax.Array) -> tuple[jax.Array, jax.Array]:
         """IPOPT's gradient-based ``(sigma, row_scale)`` from the unscaled derivatives at the start."""
         sigma = jnp.minimum(1.0, MAX_GRADIENT / jnp.maximum(jnp.max(jnp.abs(grad_f), initial=0.0), 1e-300))
-        row_max = jnp.max(jnp.abs(jac_c), axis=1, initial=0.0)[self.rows] if self.m else jnp.zeros(0, grad_f.dtype)
+        if not self.m:
+            row_max = jnp.zeros(0, grad_f.dtype)
+        elif self.stage is not None:
+            row_max = self.stage.row_max(jac_c)
+        else:
+            row_max = jnp.max(jnp.abs(jac_c), axis=1, initial=0.0)[self.rows]
         row_scale = jnp.minimum(1.0, MAX_GRADIENT / jnp.maximum(row_max, 1e-300))
         return jax.lax.stop_gradient(sigma), jax.lax.stop_gradient(row_scale)
 
@@ -133,6 +144,8 @@ class Layout:
 
         One program (half the rollouts to compile of a first-order and a Hessian program): the JVPs of ``(F, c,
         grad_w(s F + y^T c))`` along the ``n`` unit vectors, unless the transcription gives them itself."""
+        if self.stage is not None:  # block-tridiagonal (banded.py): the blocks by colour seeds
+            return self.stage.derivatives(w, y, data, objective_weight)
         # The Hessian as its stages (riccati.py), or the transcription's own.
         given = self.problem.stages if self.riccati is not None else self.problem.derivatives
         if given is not None:
@@ -160,6 +173,9 @@ class Layout:
         n, n_s = self.n, self.n_s
         grad = jnp.concatenate([sigma * grad_f, jnp.zeros(n_s, x.dtype)])
         g = self.residual(x, c, row_scale)
+        if self.stage is not None:
+            hess_x, jac_x = self.stage.scaled(hess, sigma, row_scale)
+            return Point(sigma * f, grad, g, jac_x, hess_x, f, self.violation(x, c))
         if self.m:
             jac_w = row_scale[:, None] * jac_c[self.rows]
             jac_s = row_scale[:, None] * self.slack_sign[:, None] * np.eye(self.m)[:, self.eq.size:]

@@ -123,8 +123,8 @@ class RestorationPhase:
         self.bounds = Bounds(layout)
         self.n_bounds = self.bounds.count + 2 * self.m
         self.on_w = jnp.arange(layout.n_x) < self.n  # the proximity term leaves the slacks free
-        # The system stage by stage (riccati.py) or dense: the same system, the same schedule.
-        ric = layout.riccati
+        # The system stage by stage (riccati.py, banded.py) or dense: the same system, the same schedule.
+        ric = layout.riccati or layout.banded
         self.factorize, self.solve = (ric.factorize_weighted, ric.solve_weighted) if ric else (_factorize, _solve)
 
     def idle(self, x0):

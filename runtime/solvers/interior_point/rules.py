@@ -141,19 +141,20 @@ def regularized(factorize, delta_w_last, dtype, init=None):
     return factors, delta_w, ok
 
 
-def certified(factorize, rho0, m, mu, delta_w_last, dtype, init=None):
+def certified(factorize, rho0, m, mu, delta_w_last, dtype, init=None, retries=RHO_RETRIES):
     """IPOPT's inertia correction (Wächter & Biegler 2006, Algorithm IC) on the Cholesky certificate of :mod:`.kkt`,
     for either form of the Newton system: ``factorize(k, delta_w, rho, delta_c) -> (factors, H_rho ok, S ok)`` at
     attempt ``k``. ``delta_w = 0`` first, at ``rho0``, ``10^4 rho0`` and ``10^8 rho0``, then ``delta_w`` from ``1e-4``
     (or a third of the last iteration's), growing 100x (8x after a previous correction) up to ``1e40``; a
     rank-deficient ``A`` (``S`` fails while ``H_rho`` holds) gets ``delta_c = 1e-8 mu^(1/4)`` at the same
-    ``delta_w``. ``init`` as for :func:`regularized`. Returns ``(factors, delta_w, ok)``."""
-    # Attempts 0..RHO_RETRIES keep delta_w = 0 (rho, then larger); no retries for rho when there is no A.
-    first_grown = 1 + RHO_RETRIES if m else 1
+    ``delta_w``. ``init`` as for :func:`regularized`; ``retries``: the attempts at larger ``rho`` (0 where the
+    factorisation's inertia is exact and ``rho`` plays no part: :mod:`.banded`). Returns ``(factors, delta_w, ok)``."""
+    # Attempts 0..retries keep delta_w = 0 (rho, then larger); no retries for rho when there is no A.
+    first_grown = 1 + retries if m else 1
 
     def attempt(a):
         k, delta_w, delta_c, _, _ = a
-        rho = rho0 * RHO_RETRY ** jnp.minimum(k, RHO_RETRIES).astype(dtype)
+        rho = rho0 * RHO_RETRY ** jnp.minimum(k, retries).astype(dtype)
         rho = jnp.where(delta_c > 0, jnp.minimum(rho, 1e-2 / jnp.maximum(delta_c, 1e-300)), rho)
         factors, ok_h, ok_s = factorize(k, delta_w, rho, delta_c)
         # S fails alone: A is (numerically) rank deficient; regularise it and retry the same delta_w.

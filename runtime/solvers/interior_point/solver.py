@@ -106,8 +106,8 @@ class InteriorPoint(PureNLPSolver):
             raise ValueError(f"InteriorPoint: max_iter must be a non-negative int, got {self.max_iter!r}")
         if self.batch not in ("auto", "vmap", "map"):
             raise ValueError(f"InteriorPoint: batch must be 'auto', 'vmap' or 'map', got {self.batch!r}")
-        if self.kkt not in ("auto", "dense", "riccati"):
-            raise ValueError(f"InteriorPoint: kkt must be 'auto', 'dense' or 'riccati', got {self.kkt!r}")
+        if self.kkt not in ("auto", "dense", "riccati", "banded"):
+            raise ValueError(f"InteriorPoint: kkt must be 'auto', 'dense', 'riccati' or 'banded', got {self.kkt!r}")
         if not (self.chunk in ("auto", None) or (isinstance(self.chunk, int) and not isinstance(self.chunk, bool)
                                                  and self.chunk > 0)):
             raise ValueError(f"InteriorPoint: chunk must be 'auto', None or a positive int, got {self.chunk!r}")
