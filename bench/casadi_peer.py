@@ -80,7 +80,8 @@ SETTING = SingleShooting(intervals=N, integrator=Heun())
 class CasadiShooting:
     """The published-setting NLP of one system built in CasADi, and its IPOPT solver."""
 
-    def __init__(self, cs: CasadiSystem, s_u: np.ndarray, s_x: np.ndarray, ipopt_options: dict):
+    def __init__(self, cs: CasadiSystem, s_u: np.ndarray, s_x: np.ndarray, ipopt_options: dict, intervals: int = N):
+        N = intervals  # the published 100 by default; bench/ipm_scaling.py poses larger grids
         n, m = cs.n_states, cs.n_controls
         T = cs.horizon
         h = T / N

@@ -31,7 +31,7 @@ from typing import Any
 
 from .casadi_export import CasadiSystem, _casadi
 
-__all__ = ["OptiProblem", "ScenarioProblem", "scenario_trapezoidal", "trapezoidal"]
+__all__ = ["OptiProblem", "ScenarioProblem", "node_conditions", "scenario_trapezoidal", "trapezoidal"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,7 +159,6 @@ def _start(cs: CasadiSystem, intervals: int):
 def _states(opti, cs: CasadiSystem, X, U, T, p, N: int):
     """One set of states X (n, N + 1) under the controls U at parameters p: the trapezoidal defects, x(0), the
     required final values and the state bounds, and a straight-line start; returns its cost."""
-    ca = _casadi()
     h = T / N
     t = [T * k / N for k in range(N + 1)]
     f = [cs.f(X[:, k], U[:, k], t[k], p) for k in range(N + 1)]
@@ -167,6 +166,14 @@ def _states(opti, cs: CasadiSystem, X, U, T, p, N: int):
     for k in range(N):
         opti.subject_to(X[:, k + 1] == X[:, k] + h / 2 * (f[k] + f[k + 1]))
     J = cs.phi(X[:, N], T, p) + sum(h / 2 * (L[k] + L[k + 1]) for k in range(N))
+    node_conditions(opti, cs, X, N)
+    return J
+
+
+def node_conditions(opti, cs: CasadiSystem, X, N: int) -> None:
+    """x(0), the required final values and the state bounds on the node states X (n, N + 1), and a straight-line
+    start (shared with the other transcriptions of bench/casadi_transcriptions.py)."""
+    ca = _casadi()
     opti.subject_to(X[:, 0] == ca.DM(cs.x0))
     for i, xf in enumerate(cs.x_final):
         if xf is not None:
@@ -177,7 +184,6 @@ def _states(opti, cs: CasadiSystem, X, U, T, p, N: int):
     for i, (x0, xf) in enumerate(zip(cs.x0, cs.x_final)):
         end = x0 if xf is None else xf
         opti.set_initial(X[i, :], [x0 + (end - x0) * k / N for k in range(N + 1)])
-    return J
 
 
 def _bound_controls(opti, cs: CasadiSystem, U) -> None:
