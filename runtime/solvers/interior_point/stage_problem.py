@@ -16,7 +16,6 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from ...transcriptions.stage_structure import StageStructure
 from . import stage_blocks as sb
 from .banded import Banded, StageJacobian
 
@@ -31,7 +30,7 @@ class StageProblem:
         self.layout = layout
         var_stage = np.concatenate([structure.var_stage, structure.row_stage[layout.ineq]])
         row_stage = structure.row_stage[layout.rows]
-        self.index = sb.StageIndex.from_structure(StageStructure(var_stage, row_stage, structure.n_stages))
+        self.index = sb.StageIndex.from_stages(var_stage, row_stage, structure.n_stages)
         self.banded = Banded(self.index, layout.n_x, layout.m)
         self._derivatives = sb.stage_derivatives(self._residuals, self.index)
         ix = self.index
