@@ -101,9 +101,16 @@ class StageIndex:
     @classmethod
     def from_structure(cls, structure: Any) -> "StageIndex":
         """The index of a :class:`~myriad.runtime.transcriptions.stage_structure.StageStructure`."""
-        K = int(structure.n_stages)
-        var_index, border_vars, var_position = _frozen(*_pack(np.asarray(structure.var_stage), K))
-        row_index, border_rows, row_position = _frozen(*_pack(np.asarray(structure.row_stage), K))
+        return cls.from_stages(structure.var_stage, structure.row_stage, structure.n_stages)
+
+    @classmethod
+    def from_stages(cls, var_stage: np.ndarray, row_stage: np.ndarray, n_stages: int) -> "StageIndex":
+        """The index of the stages of each variable and row (as a StageStructure holds them, already checked): for a
+        solver that extends the NLP's structure (slacks) without importing the transcriptions package, which imports
+        the solvers."""
+        K = int(n_stages)
+        var_index, border_vars, var_position = _frozen(*_pack(np.asarray(var_stage, dtype=np.int64), K))
+        row_index, border_rows, row_position = _frozen(*_pack(np.asarray(row_stage, dtype=np.int64), K))
         return cls(K=K, sv=var_index.shape[1], sr=row_index.shape[1], nb=border_vars.size, mb=border_rows.size,
                    var_index=var_index, row_index=row_index, border_vars=border_vars, border_rows=border_rows,
                    n=var_position.size, m=row_position.size, var_position=var_position, row_position=row_position)
