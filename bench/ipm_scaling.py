@@ -14,7 +14,8 @@ cold = the first call at that N (myriad: tracing, XLA compilation and the solve;
 both myriad solvers, is built before, untimed; CasADi: building the NLP and the solver, and the solve); compile =
 myriad's own compile_seconds of that call. warm = the same call again, --repeat times, the three solvers alternating
 so that load from other processes hits them alike: median, and the range (min-max). Each figure is wall time
-(Python overhead included). After each N, myriad's compiled programs are dropped (runtime.clear_caches).
+(Python overhead included); the JSON also has the process's CPU seconds of each call (all its threads: XLA's may
+run several), which load distorts less. After each N, myriad's compiled programs are dropped (runtime.clear_caches).
 
 The growth exponent is the least-squares slope of log(warm median) against log(N) over N >= --fit-from (default:
 the second smallest N when three or more are given, so 400 to 6400 by default; else the smallest). Costs: the
@@ -131,6 +132,7 @@ def skip_reason(state: dict, intervals: int, limit: float) -> str | None:
 
 
 def _cold(key: str, cold, label: str) -> dict:
+    cpu = time.process_time()
     try:
         r = cold()
     except Exception as exc:  # a solve that fails at scale (memory, XLA) is a result: recorded, larger N skipped
@@ -138,7 +140,8 @@ def _cold(key: str, cold, label: str) -> dict:
         return {"error": f"{type(exc).__name__}: {str(exc)[:300]}"}
     log(f"  {label} {key}: cold {r['seconds']:.3f} s, cost {r['cost']:.10g}, {r['iterations']} it, {r['status']}")
     return {"cost": r["cost"], "converged": r["converged"], "status": r["status"], "iterations": r["iterations"],
-            "cold_seconds": r["seconds"], "compile_seconds": r.get("compile_seconds"), "warm": []}
+            "cold_seconds": r["seconds"], "cold_cpu_seconds": time.process_time() - cpu,
+            "compile_seconds": r.get("compile_seconds"), "warm": [], "warm_cpu": []}
 
 
 def _warm(records: dict, calls: dict, repeat: int, limit: float, label: str) -> None:
@@ -147,7 +150,9 @@ def _warm(records: dict, calls: dict, repeat: int, limit: float, label: str) -> 
         for key, rec in records.items():
             if "error" in rec or (rec["warm"] and rec["warm"][-1] > limit):
                 continue
+            cpu = time.process_time()
             r = calls[key][1]()
+            rec["warm_cpu"].append(time.process_time() - cpu)
             rec["warm"].append(r["seconds"])
             if r["iterations"] != rec["iterations"] or _rel(r["cost"], rec["cost"]) > 1e-12:
                 rec["warm_differs"] = f"warm call {i + 1}: {r['iterations']} it, cost {r['cost']:.12g}"
@@ -156,7 +161,7 @@ def _warm(records: dict, calls: dict, repeat: int, limit: float, label: str) -> 
     for rec in records.values():
         if rec.get("warm"):
             rec.update(warm_seconds=statistics.median(rec["warm"]), warm_min=min(rec["warm"]),
-                       warm_max=max(rec["warm"]))
+                       warm_max=max(rec["warm"]), warm_cpu_seconds=statistics.median(rec["warm_cpu"]))
 
 
 def _agreement(records: dict) -> float | None:
@@ -208,13 +213,14 @@ def fit_from(intervals: list[int], given: int | None) -> int:
     return intervals[1] if len(intervals) >= 3 else intervals[0]
 
 
-def exponents(rows: list[dict], solvers: list[str], start: int) -> dict:
-    """Per transcription and solver: the least-squares slope of log(warm median) in log(N) over N >= start."""
+def exponents(rows: list[dict], solvers: list[str], start: int, field: str = "warm_seconds") -> dict:
+    """Per transcription and solver: the least-squares slope of log(field) in log(N) over N >= start (``field``:
+    the warm median, or ``compile_seconds``, which should not grow)."""
     out: dict = {}
     for name in dict.fromkeys(r["transcription"] for r in rows):
         for key in solvers:
-            pts = [(r["intervals"], r["solvers"][key]["warm_seconds"]) for r in rows if r["transcription"] == name
-                   and r["intervals"] >= start and r["solvers"].get(key, {}).get("warm_seconds")]
+            pts = [(r["intervals"], r["solvers"][key][field]) for r in rows if r["transcription"] == name
+                   and r["intervals"] >= start and r["solvers"].get(key, {}).get(field)]
             fit = {"points": len(pts), "from": pts[0][0] if pts else None, "to": pts[-1][0] if pts else None,
                    "exponent": None}
             if len(pts) >= 2:
@@ -222,6 +228,12 @@ def exponents(rows: list[dict], solvers: list[str], start: int) -> dict:
                 fit["exponent"] = float(np.polyfit(n, t, 1)[0])
             out.setdefault(name, {})[key] = fit
     return out
+
+
+def _fit_cell(f: dict) -> str:
+    if f["exponent"] is None:
+        return f"- ({f['points']} point{'s' if f['points'] != 1 else ''})"
+    return f"{f['exponent']:.2f} (N={f['from']}-{f['to']})"
 
 
 def _cell(rec: dict | None, what: str) -> str:
@@ -237,7 +249,7 @@ def _cell(rec: dict | None, what: str) -> str:
     return f"{rec['cold_seconds']:.3g}" + (f" ({compile_s:.3g})" if compile_s is not None else "")
 
 
-def markdown(rows: list[dict], solvers: list[str], fits: dict, start: int) -> str:
+def markdown(rows: list[dict], solvers: list[str], fits: dict, compile_fits: dict, start: int) -> str:
     names = [SOLVERS[k] for k in solvers]
     head = (["transcription", "N"] + [f"{n} warm s" for n in names] + ["IP / IPOPT warm"]
             + [f"{n} cold s (compile)" for n in names] + ["iterations (" + " / ".join(names) + ")", "cost",
@@ -256,11 +268,12 @@ def markdown(rows: list[dict], solvers: list[str], fits: dict, start: int) -> st
         lines.append("| " + " | ".join([r["transcription"], str(r["intervals"])]
                                         + [_cell(s.get(k), "warm") for k in solvers] + [ratio]
                                         + [_cell(s.get(k), "cold") for k in solvers] + [its, cost, flag]) + " |")
-    lines += ["", f"Growth exponent of the warm median in N (least squares on log-log, N >= {start}):", "",
-              "| transcription | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    lines += ["", f"Growth exponent in N (least squares on log-log, N >= {start}) of the warm median, and of the "
+              "compile seconds (myriad's; CasADi's build):", "",
+              "| transcription | " + " | ".join(f"{n} warm" for n in names) + " | "
+              + " | ".join(f"{n} compile" for n in names) + " |", "|---|" + "---|" * 2 * len(names)]
     for name, per in fits.items():
-        cells = [f"{f['exponent']:.2f} (N={f['from']}-{f['to']})" if f["exponent"] is not None
-                 else f"- ({f['points']} point{'s' if f['points'] != 1 else ''})" for f in per.values()]
+        cells = [_fit_cell(per[k]) for k in solvers] + [_fit_cell(compile_fits[name][k]) for k in solvers]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -323,7 +336,7 @@ def _checked(argv) -> tuple[argparse.Namespace, InteriorPoint]:
         ap.error(f"--kkt {args.kkt!r}: {exc}")
     args.intervals = sorted(args.intervals)
     args.transcriptions = list(dict.fromkeys(args.transcriptions))
-    args.solvers = list(dict.fromkeys(args.solvers))
+    args.solvers = [k for k in SOLVERS if k in args.solvers]  # the table's columns in one order
     return args, ip
 
 
@@ -357,15 +370,16 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(run_row(ctx, name, n, states, args))
     start = fit_from(args.intervals, args.fit_from)
     fits = exponents(rows, args.solvers, start)
+    compile_fits = exponents(rows, args.solvers, start, "compile_seconds")
     print()
-    print(markdown(rows, args.solvers, fits, start))
+    print(markdown(rows, args.solvers, fits, compile_fits, start))
     print()
     for line in notes(rows, args):
         print(line)
     info["load_after"] = list(os.getloadavg())
     print(f"load average after: {' '.join(f'{x:.2f}' for x in info['load_after'])}")
     if args.json:
-        out = {**info, "fit_from": start, "rows": rows, "exponents": fits}
+        out = {**info, "fit_from": start, "rows": rows, "exponents": fits, "compile_exponents": compile_fits}
         atomic_write_text(args.json, json.dumps(_json_safe(out), indent=1) + "\n")
     return 0
 

@@ -27,6 +27,7 @@ def _tiny_run(tmp_path, solvers):
     assert abs(c10 - c20) > 1e-4
     fits = data["exponents"]["trapezoidal"]
     assert data["fit_from"] == 10 and all(f["points"] == 2 and f["exponent"] is not None for f in fits.values())
+    assert set(data["compile_exponents"]["trapezoidal"]) == set(solvers)
     return data
 
 
