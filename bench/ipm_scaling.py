@@ -5,7 +5,9 @@ For one system (default Van der Pol) and each transcription and N (``bench.casad
 shooting with Heun, multiple shooting with one RK4 step per interval, trapezoidal and Hermite-Simpson collocation, N
 control intervals each), three solvers solve the same discrete problem:
 
-    interior_point   solve(system, transcription, InteriorPoint(kkt=--kkt), resimulate=False, nominal=True)
+    interior_point   solve(system, transcription, InteriorPoint(kkt=KKT), resimulate=False, nominal=True), KKT from
+                     --kkt: one method for every transcription, or TRANSCRIPTION=METHOD for one (repeatable: e.g.
+                     --kkt banded --kkt single_shooting=auto)
     ipopt            the same with Ipopt() (cyipopt; sparse MUMPS, exact Hessian)
     casadi           CasADi + IPOPT on the peer transcription of bench/casadi_transcriptions.py, with myriad's IPOPT
                      options (tol 1e-8, ...), built from the spec's sympy export (the export itself is not timed)
@@ -28,7 +30,7 @@ a larger N is also skipped when the growth of its last two N predicts a call ove
 skipping IPOPT on single shooting at the largest N.
 
 Usage: python -m bench.ipm_scaling [--system van_der_pol] [--transcriptions T ...] [--intervals 100 400 1600 6400]
-       [--solvers interior_point ipopt casadi] [--repeat 3] [--kkt auto] [--max-seconds 120] [--fit-from N]
+       [--solvers interior_point ipopt casadi] [--repeat 3] [--kkt [T=]KKT ...] [--max-seconds 120] [--fit-from N]
        [--json PATH]
 """
 
@@ -176,7 +178,7 @@ def run_row(ctx: dict, name: str, intervals: int, states: dict, args) -> dict:
     system, label = ctx["system"], f"{name} N={intervals}"
     tr = SETTINGS[name](intervals)
     transcribe(system, tr)  # shared by both myriad solvers: built before either is timed
-    makers = {"interior_point": lambda: myriad_calls(system, tr, ctx["interior_point"]),
+    makers = {"interior_point": lambda: myriad_calls(system, tr, ctx["interior_point"][name]),
               "ipopt": lambda: myriad_calls(system, tr, Ipopt()),
               "casadi": lambda: casadi_calls(ctx["cs"], system, name, intervals, ctx["ipopt_options"])}
     records, calls, skipped = {}, {}, {}
@@ -304,7 +306,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--solvers", nargs="+", default=list(SOLVERS), choices=list(SOLVERS), metavar="S",
                     help=f"any of {', '.join(SOLVERS)} (default all)")
     ap.add_argument("--repeat", type=int, default=3, help="warm calls per solver and N (median and range)")
-    ap.add_argument("--kkt", default="auto", help="InteriorPoint(kkt=...): the Newton system's method")
+    ap.add_argument("--kkt", action="append", default=[], metavar="[T=]KKT",
+                    help="InteriorPoint(kkt=KKT), the Newton system's method (default auto), for every transcription "
+                         "or, as T=KKT, for transcription T; repeatable")
     ap.add_argument("--max-seconds", type=float, default=120.0,
                     help="a call over this skips the larger N of that solver and transcription")
     ap.add_argument("--fit-from", type=int, default=None, metavar="N",
@@ -314,7 +318,25 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _checked(argv) -> tuple[argparse.Namespace, InteriorPoint]:
+def _interior_points(ap, kkt: list[str], names: list[str]) -> dict[str, InteriorPoint]:
+    """One InteriorPoint per transcription from the --kkt values (later ones win), validated by InteriorPoint."""
+    methods = dict.fromkeys(names, "auto")
+    for value in kkt:
+        name, _, method = value.rpartition("=")
+        if name and name not in SETTINGS:
+            ap.error(f"--kkt {value!r}: {name!r} is not a transcription; use KKT or T=KKT with T one of "
+                     f"{', '.join(SETTINGS)}")
+        methods.update({name: method} if name else dict.fromkeys(methods, method))
+    out = {}
+    for name in names:
+        try:
+            out[name] = InteriorPoint(kkt=methods[name])
+        except ValueError as exc:
+            ap.error(f"--kkt {methods[name]!r}: {exc}")
+    return out
+
+
+def _checked(argv) -> tuple[argparse.Namespace, dict[str, InteriorPoint]]:
     """The arguments, or exit 2 naming the input and the fix."""
     ap = _parser()
     args = ap.parse_args(argv)
@@ -330,10 +352,7 @@ def _checked(argv) -> tuple[argparse.Namespace, InteriorPoint]:
         ap.error(f"--max-seconds {args.max_seconds}: give a positive number of seconds")
     if args.json and not Path(args.json).resolve().parent.is_dir():
         ap.error(f"--json {args.json}: its folder does not exist; create it or choose another path")
-    try:
-        ip = InteriorPoint(kkt=args.kkt)
-    except ValueError as exc:
-        ap.error(f"--kkt {args.kkt!r}: {exc}")
+    ip = _interior_points(ap, args.kkt, args.transcriptions)
     args.intervals = sorted(args.intervals)
     args.transcriptions = list(dict.fromkeys(args.transcriptions))
     args.solvers = [k for k in SOLVERS if k in args.solvers]  # the table's columns in one order
@@ -345,13 +364,15 @@ def _header(args, ip) -> dict:
                 "ipopt": ".".join(map(str, cyipopt.IPOPT_VERSION))}
     info = {"system": args.system, "machine": _machine(), "load_before": list(os.getloadavg()),
             "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "versions": versions,
-            "interior_point": repr(ip), "ipopt_options": Ipopt().ipopt_options(),
+            "interior_point": {k: repr(v) for k, v in ip.items()}, "ipopt_options": Ipopt().ipopt_options(),
             "settings": {k: repr(SETTINGS[k](2)).replace("intervals=2", "intervals=N") for k in args.transcriptions},
             "intervals": args.intervals, "repeat": args.repeat, "max_seconds": args.max_seconds}
     print(f"{args.system}: {info['machine']}, load average {' '.join(f'{x:.2f}' for x in info['load_before'])}, "
           f"OPENBLAS_NUM_THREADS={info['openblas_num_threads']}; JAX {versions['jax']} on "
           f"{jax.devices()[0].platform}, CasADi {versions['casadi']}, IPOPT {versions['ipopt']} (cyipopt)")
-    print(f"{ip!r}; IPOPT options (both IPOPT columns): {info['ipopt_options']}")
+    kkt = ", ".join(f"{k} {v.kkt!r}" for k, v in ip.items())
+    print(f"InteriorPoint kkt: {kkt}; otherwise as {next(iter(ip.values()))!r}")
+    print(f"IPOPT options (both IPOPT columns): {info['ipopt_options']}")
     print("transcriptions: " + "; ".join(f"{k} = {v}" for k, v in info["settings"].items()))
     return info
 

@@ -52,12 +52,18 @@ def test_the_limit_skips_larger_n():
     assert scaling.skip_reason(states, 1600, 1e9) == states["skip"]  # once skipped, larger N stay skipped
 
 
+def test_kkt_per_transcription():
+    _, ip = scaling._checked(["--kkt", "dense", "--kkt", "trapezoidal=banded"])
+    assert ip["trapezoidal"].kkt == "banded" and ip["hermite_simpson"].kkt == ip["single_shooting"].kkt == "dense"
+
+
 @pytest.mark.parametrize("argv, flag", [
     (["--intervals", "1", "4"], "--intervals"),
     (["--intervals", "4", "4"], "--intervals"),
     (["--repeat", "0"], "--repeat"),
     (["--system", "no_such_system"], "--system"),
     (["--kkt", "no_such_method"], "--kkt"),
+    (["--kkt", "collocation=banded"], "--kkt"),
     (["--transcriptions", "collocation"], "--transcriptions"),
     (["--max-seconds", "0"], "--max-seconds"),
     (["--json", "/no/such/folder/out.json"], "--json"),
