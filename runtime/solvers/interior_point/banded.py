@@ -84,7 +84,8 @@ class BandedFactors(NamedTuple):
     d_brow: jax.Array  # (mb,)
     sinv: jax.Array  # (K, s, s) S_k^{-1}
     gain: jax.Array  # (K - 1, s, s) S_k^{-1} E_k
-    tinv_b: jax.Array  # (K, s, q) K_core^{-1} B, q = nb + mb
+    bmat: jax.Array  # (K, s, q) B, the core's coupling to the border (q = nb + mb)
+    tinv_b: jax.Array  # (K, s, q) K_core^{-1} B
     schur_inv: jax.Array  # (q, q)
 
 
@@ -95,18 +96,25 @@ class _Inertia(NamedTuple):
 
 
 def _counts(lam) -> _Inertia:
-    """Positive, negative and zero eigenvalues of symmetric blocks from their eigenvalues ``(..., s)``."""
-    tol = ZERO_PIVOT * jnp.maximum(1.0, jnp.max(jnp.abs(lam), axis=-1, keepdims=True))
-    return _Inertia(jnp.sum(lam > tol), jnp.sum(lam < -tol), jnp.sum(jnp.abs(lam) <= tol))
+    """Positive, negative and zero eigenvalues of symmetric blocks from their (scaled) eigenvalues ``(..., s)``."""
+    tol = ZERO_PIVOT * jnp.max(jnp.abs(lam), axis=-1, keepdims=True)
+    return _Inertia(jnp.sum(lam > tol, axis=-1), jnp.sum(lam < -tol, axis=-1), jnp.sum(jnp.abs(lam) <= tol, axis=-1))
 
 
 def _inverse(sym) -> tuple[jax.Array, jax.Array]:
-    """``(inverse, eigenvalues)`` of symmetric ``(..., s, s)`` blocks; a zero eigenvalue's term is left out, so the
-    inverse stays finite (such a factorisation is rejected by the inertia test, never used)."""
-    lam, vec = jnp.linalg.eigh(0.5 * (sym + jnp.swapaxes(sym, -1, -2)))
-    tol = ZERO_PIVOT * jnp.maximum(1.0, jnp.max(jnp.abs(lam), axis=-1, keepdims=True))
+    """``(inverse, eigenvalues of D S D)`` of symmetric ``(..., s, s)`` blocks ``S``, ``D`` the diagonal scaling
+    that gives every row of ``D S D`` unit largest magnitude (same inertia: a congruence). Why scaled: a variable
+    near its bound puts ``Sigma ~ 1e10`` in a block whose rows' eigenvalues are ``~ -1 / Sigma``; an eigensolver
+    resolves eigenvalues to ``eps ||S||``, so unscaled they would read as zero. A zero eigenvalue's term is left
+    out, so the inverse stays finite (such a factorisation is rejected by the inertia test, never used)."""
+    sym = 0.5 * (sym + jnp.swapaxes(sym, -1, -2))
+    big = jnp.max(jnp.abs(sym), axis=-1)
+    d = 1.0 / jnp.sqrt(jnp.where(big > 0.0, big, 1.0))
+    lam, vec = jnp.linalg.eigh(d[..., :, None] * sym * d[..., None, :])
+    tol = ZERO_PIVOT * jnp.max(jnp.abs(lam), axis=-1, keepdims=True)
     inv_lam = jnp.where(jnp.abs(lam) > tol, 1.0 / jnp.where(jnp.abs(lam) > tol, lam, 1.0), 0.0)
-    return jnp.einsum("...ij,...j,...kj->...ik", vec, inv_lam, vec), lam
+    inv = jnp.einsum("...ij,...j,...kj->...ik", vec, inv_lam, vec)
+    return d[..., :, None] * inv * d[..., None, :], lam
 
 
 class Banded:
@@ -157,13 +165,15 @@ class Banded:
 
         _, (sinv, lam) = jax.lax.scan(eliminate, jnp.zeros_like(d[0]), (d, e_prev))
         gain = sinv[:-1] @ e
-        core = _counts(lam.reshape(-1))
+        core = _counts(lam)
         bmat, cmat = self._border(b, d_bvar, d_brow)
-        partial = BandedFactors(b, d_var, d_row, d_bvar, d_brow, sinv, gain, bmat, jnp.zeros_like(cmat))
+        partial = BandedFactors(b, d_var, d_row, d_bvar, d_brow, sinv, gain, bmat, bmat, jnp.zeros_like(cmat))
+        if not cmat.shape[0]:  # no border
+            return partial, _Inertia(*(jnp.sum(a) for a in core))
         tinv_b = self._core_solve(partial, bmat)
         schur_inv, lam_b = _inverse(cmat - jnp.einsum("ksp,ksq->pq", bmat, tinv_b))
         border = _counts(lam_b)
-        inertia = _Inertia(*(a + c for a, c in zip(core, border)))
+        inertia = _Inertia(*(jnp.sum(a) + jnp.sum(c) for a, c in zip(core, border)))
         return partial._replace(tinv_b=tinv_b, schur_inv=schur_inv), inertia
 
     def _right(self, inertia: _Inertia) -> jax.Array:
@@ -230,7 +240,9 @@ class Banded:
 
     def _solve_stages(self, f: BandedFactors, rc, rb):
         u = self._core_solve(f, rc)
-        xb = f.schur_inv @ (rb - jnp.einsum("ksq,ks->q", f.tinv_b, u))
+        if not rb.shape[0]:
+            return u, rb
+        xb = f.schur_inv @ (rb - jnp.einsum("ksq,ks->q", f.bmat, u))
         return u - f.tinv_b @ xb, xb
 
     def _split(self, v, y):
