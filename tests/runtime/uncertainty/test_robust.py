@@ -170,7 +170,7 @@ def test_additive_closed_forms(additive):
     assert warm.converged and warm.cost == pytest.approx(J0 + 14 / 3, abs=1e-8)
 
 
-@pytest.mark.slow  # a forward-mode Jacobian compiled for each of eight NLPs
+@pytest.mark.slow  # a forward-mode Jacobian compiled for each of eight NLPs (jitted: eager was 16 s, jitted 1.5 s)
 def test_the_jacobian_pattern_covers_every_nonzero(additive):
     """At a random point, every non-zero of the scenario NLP's Jacobian (forward mode) lies in its pattern, on every
     transcription, with path rows; mean (the transcription's rows alone) and CVaR (its epigraph rows read t and
@@ -181,7 +181,7 @@ def test_the_jacobian_pattern_covers_every_nonzero(additive):
         for objective, alpha in (("mean", None), ("cvar", 0.5)):
             nlp = R.scenario_nlp(additive, cls.on_grid(5), 3, objective, alpha)
             w = np.asarray(nlp.initial_guess(data)) + 0.1 * rng.standard_normal(nlp.n_variables)
-            jac = np.asarray(jax.jacfwd(nlp.constraints)(w, data))
+            jac = np.asarray(jax.jit(jax.jacfwd(nlp.constraints))(w, data))
             pattern = np.ones(jac.shape, bool) if nlp.jacobian_sparsity is None else np.zeros(jac.shape, bool)
             if nlp.jacobian_sparsity is not None:
                 pattern[nlp.jacobian_sparsity] = True
