@@ -36,14 +36,19 @@ def _point(nlp, seed):
     return jnp.asarray(z), jnp.asarray(rng.normal(size=nlp.n_constraints))
 
 
-def _reference(nlp, z, lam, data):
-    def lagrangian(z_):
-        f, c = nlp.evaluate(z_, data)
-        return f + jnp.dot(lam, jnp.reshape(c, (-1,)))
+def _reference(nlp, data):
+    """JAX's own F, c, gradient, Jacobian and Lagrangian Hessian at (z, lam), one compiled program (op by op they
+    took seconds a point)."""
+    def reference(z, lam):
+        def lagrangian(z_):
+            f, c = nlp.evaluate(z_, data)
+            return f + jnp.dot(lam, jnp.reshape(c, (-1,)))
 
-    f, c = nlp.evaluate(z, data)
-    return (f, c, jax.grad(lambda z_: nlp.evaluate(z_, data)[0])(z),
-            jax.jacfwd(lambda z_: nlp.evaluate(z_, data)[1])(z), jax.hessian(lagrangian)(z))
+        f, c = nlp.evaluate(z, data)
+        return (f, c, jax.grad(lambda z_: nlp.evaluate(z_, data)[0])(z),
+                jax.jacfwd(lambda z_: nlp.evaluate(z_, data)[1])(z), jax.hessian(lagrangian)(z))
+
+    return jax.jit(reference)
 
 
 @pytest.mark.parametrize("name, transcription", [
@@ -58,10 +63,11 @@ def test_staged_derivatives_equal_jax_hessian(name, transcription):
     nlp = transcribe(system, transcription)
     assert nlp.lagrangian_derivatives is not None
     data = default_data(system)
+    staged, reference = jax.jit(nlp.lagrangian_derivatives), _reference(nlp, data)
     for seed in range(2):
         z, lam = _point(nlp, seed)
-        got = jax.jit(nlp.lagrangian_derivatives)(z, lam, data)
-        want = _reference(nlp, z, lam, data)
+        got = staged(z, lam, data)
+        want = reference(z, lam)
         for label, g, w in zip(("F", "c", "gradient", "Jacobian", "Hessian"), got, want):
             g, w = np.asarray(g), np.reshape(np.asarray(w), np.shape(g))
             assert np.all(np.isfinite(g)), label
@@ -91,11 +97,14 @@ def test_shared_inputs_and_a_nonlinear_terminal():
             y = step(k, y, z_[index[k]])
         return terminal(y)
 
-    f, c, grad, jac, hess = staged_derivatives(step, terminal, y0, z, index, lam)
-    np.testing.assert_allclose(f, rollout(z)[0], rtol=1e-14)
-    np.testing.assert_allclose(grad, jax.grad(lambda z_: rollout(z_)[0])(z), rtol=1e-12, atol=1e-13)
-    np.testing.assert_allclose(jac, jax.jacfwd(lambda z_: rollout(z_)[1])(z), rtol=1e-12, atol=1e-13)
-    want = jax.hessian(lambda z_: rollout(z_)[0] + jnp.dot(lam, rollout(z_)[1]))(z)
+    # Each side one compiled program (op by op, the unrolled rollout's Hessian took seconds).
+    f, c, grad, jac, hess = jax.jit(lambda z_, l_: staged_derivatives(step, terminal, y0, z_, index, l_))(z, lam)
+    want_f, want_grad, want_jac, want = jax.jit(lambda z_: (
+        rollout(z_)[0], jax.grad(lambda v: rollout(v)[0])(z_), jax.jacfwd(lambda v: rollout(v)[1])(z_),
+        jax.hessian(lambda v: rollout(v)[0] + jnp.dot(lam, rollout(v)[1]))(z_)))(z)
+    np.testing.assert_allclose(f, want_f, rtol=1e-14)
+    np.testing.assert_allclose(grad, want_grad, rtol=1e-12, atol=1e-13)
+    np.testing.assert_allclose(jac, want_jac, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(hess, want, rtol=1e-11, atol=1e-12)
 
 
@@ -164,7 +173,7 @@ def test_ipopt_hessian_products_use_the_stages_with_its_objective_factor(sigma):
     # The packed first-order part: F, its gradient, c and the dense Jacobian, row-major as the callbacks read it.
     packed, skipped = jax.jit(fns.staged._jitted)(w, sigma, lam, data, False)
     assert not np.any(skipped)  # a first-order call: the Hessian's part not computed
-    (f, c), grad = jax.value_and_grad(lambda v: plain.evaluate(v, data), has_aux=True)(w)
-    jac = jax.jacfwd(lambda v: plain.evaluate(v, data)[1])(w)
+    (f, c), grad, jac = jax.jit(lambda w_: (*jax.value_and_grad(lambda v: plain.evaluate(v, data), has_aux=True)(w_),
+                                            jax.jacfwd(lambda v: plain.evaluate(v, data)[1])(w_)))(w)
     want_packed = jnp.concatenate([jnp.reshape(f, (1,)), grad, jnp.ravel(c), jnp.ravel(jac)])
     np.testing.assert_allclose(packed, want_packed, rtol=1e-10, atol=1e-12 * float(jnp.max(jnp.abs(want_packed))))
