@@ -10,26 +10,22 @@ Ordered by stage (:mod:`.stage_blocks`: stage ``k`` holds its variables, then it
 is block tridiagonal with stage blocks ``D_k`` (size ``s = sv + sr``) and couplings ``E_k`` between stages ``k`` and
 ``k + 1`` (the Hessian's ``H[vars_k, vars_{k+1}]`` and the rows that read the next or previous stage), bordered by
 the few variables and rows that reach every stage (a free final time; terminal fixed-value rows). The core is
-factorised by block Gaussian elimination in stage order, ``K_core = L diag(S_k) L^T`` with
-
-.. math::
-    S_0 = D_0,\qquad S_k = D_k - E_{k-1}^\top S_{k-1}^{-1} E_{k-1},\qquad L_{k+1,k} = E_k^\top S_k^{-1},
-
-and the border by the Schur complement ``C - B^T K_core^{-1} B``. Each ``S_k`` (and the border's complement) is
-symmetric and small, and is inverted through its eigendecomposition, which also counts its positive, negative and
-zero eigenvalues. ``K`` is congruent to ``diag(S_0, ..., S_{K-1}, Schur)``, so by Sylvester's law of inertia those
-counts summed are ``K``'s inertia, exactly: no certificate, no ``rho``. That is the test IPOPT's inertia correction
-asks for (``(n_x, m, 0)``; a zero eigenvalue is a singular ``K``, for which ``delta_c`` is tried first) and the
-schedule is the dense method's (:func:`~.rules.certified` without its ``rho`` retries). Cost: ``O(K s^3)`` per
-factorisation and ``O(K s^2)`` per solve, linear in the number of stages; memory ``O(K s^2)``.
+factorised by block Gaussian elimination (:mod:`.tridiagonal`: sequential for few stages, partitioned into chunks
+eliminated side by side for many), the border by the Schur complement ``C - B^T K_core^{-1} B``. Elimination is a
+congruence, so by Sylvester's law the pivot blocks' inertias summed are ``K``'s, exactly: no certificate, no
+``rho``. That is the test IPOPT's inertia correction asks for (``(n_x, m, 0)``; a zero eigenvalue is a singular
+``K``, for which ``delta_c`` is tried first), and the schedule is the dense method's (:func:`~.rules.certified`
+without its ``rho`` retries). Cost: ``O(K s^3)`` per factorisation and ``O(K s^2)`` per solve, linear in the number
+of stages; memory ``O(K s^2)``.
 
 Padding: stages have ``sv`` variable and ``sr`` row slots; an unused variable slot carries ``+1`` on the diagonal and
 an unused row slot ``-1``, uncoupled, so each adds one known eigenvalue that the inertia test expects.
 
 Why no pivoting across stages: a stage's rows (its defects, which hold the stage's own state with a near-identity
-coefficient) have full row rank in its own variables, so ``S_k`` is invertible wherever ``K`` is well posed and
-the eigendecomposition of each ``S_k`` is the pivot (a stage-sized Bunch-Kaufman, in effect). What could still be
-inaccurate is caught by one step of iterative refinement on ``K`` in every solve, as the dense method does.
+coefficient) have full row rank in its own variables, so each pivot block is invertible wherever ``K`` is well
+posed, and a pivot block's own inverse (Cholesky factors where they certify it, else its eigendecomposition) is a
+stage-sized Bunch-Kaufman in effect. What could still be inaccurate is caught by one step of iterative refinement on
+``K`` in every solve, as the dense method does.
 """
 
 from __future__ import annotations
@@ -41,12 +37,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from . import stage_blocks as sb
+from . import tridiagonal as tri
 from .rules import certified, regularized
 
 __all__ = ["Banded", "BandedFactors", "StageJacobian"]
-
-# An eigenvalue of a stage block is zero (K singular) below this, relative to the block's largest magnitude.
-ZERO_PIVOT = 1e-13
 
 
 @jax.tree_util.register_pytree_node_class
@@ -82,8 +76,7 @@ class BandedFactors(NamedTuple):
     d_row: jax.Array  # (K, sr) -D_c on the core rows (-1 at padding)
     d_bvar: jax.Array  # (nb,)
     d_brow: jax.Array  # (mb,)
-    sinv: jax.Array  # (K, s, s) S_k^{-1}
-    gain: jax.Array  # (K - 1, s, s) S_k^{-1} E_k
+    core: tri.Factors  # the core's block-tridiagonal factors
     bmat: jax.Array  # (K, s, q) B, the core's coupling to the border (q = nb + mb)
     tinv_b: jax.Array  # (K, s, q) K_core^{-1} B
     schur_inv: jax.Array  # (q, q)
@@ -93,28 +86,6 @@ class _Inertia(NamedTuple):
     positive: jax.Array
     negative: jax.Array
     zero: jax.Array
-
-
-def _counts(lam) -> _Inertia:
-    """Positive, negative and zero eigenvalues of symmetric blocks from their (scaled) eigenvalues ``(..., s)``."""
-    tol = ZERO_PIVOT * jnp.max(jnp.abs(lam), axis=-1, keepdims=True)
-    return _Inertia(jnp.sum(lam > tol, axis=-1), jnp.sum(lam < -tol, axis=-1), jnp.sum(jnp.abs(lam) <= tol, axis=-1))
-
-
-def _inverse(sym) -> tuple[jax.Array, jax.Array]:
-    """``(inverse, eigenvalues of D S D)`` of symmetric ``(..., s, s)`` blocks ``S``, ``D`` the diagonal scaling
-    that gives every row of ``D S D`` unit largest magnitude (same inertia: a congruence). Why scaled: a variable
-    near its bound puts ``Sigma ~ 1e10`` in a block whose rows' eigenvalues are ``~ -1 / Sigma``; an eigensolver
-    resolves eigenvalues to ``eps ||S||``, so unscaled they would read as zero. A zero eigenvalue's term is left
-    out, so the inverse stays finite (such a factorisation is rejected by the inertia test, never used)."""
-    sym = 0.5 * (sym + jnp.swapaxes(sym, -1, -2))
-    big = jnp.max(jnp.abs(sym), axis=-1)
-    d = 1.0 / jnp.sqrt(jnp.where(big > 0.0, big, 1.0))
-    lam, vec = jnp.linalg.eigh(d[..., :, None] * sym * d[..., None, :])
-    tol = ZERO_PIVOT * jnp.max(jnp.abs(lam), axis=-1, keepdims=True)
-    inv_lam = jnp.where(jnp.abs(lam) > tol, 1.0 / jnp.where(jnp.abs(lam) > tol, lam, 1.0), 0.0)
-    inv = jnp.einsum("...ij,...j,...kj->...ik", vec, inv_lam, vec)
-    return d[..., :, None] * inv * d[..., None, :], lam
 
 
 class Banded:
@@ -156,25 +127,14 @@ class Banded:
     def factor(self, b: sb.StageBlocks, d_var, d_row, d_bvar, d_brow) -> tuple[BandedFactors, _Inertia]:
         """The factors of ``K`` (diagonals given in stage form) and its inertia."""
         d, e = self._stage_matrices(b, d_var, d_row)
-        e_prev = jnp.concatenate([jnp.zeros_like(d[:1]), e], axis=0)
-
-        def eliminate(sinv_prev, inp):
-            d_k, e_k = inp
-            sinv, lam = _inverse(d_k - e_k.T @ sinv_prev @ e_k)
-            return sinv, (sinv, lam)
-
-        _, (sinv, lam) = jax.lax.scan(eliminate, jnp.zeros_like(d[0]), (d, e_prev))
-        gain = sinv[:-1] @ e
-        core = _counts(lam)
+        core, counts = tri.factor(d, e, self.sv)
         bmat, cmat = self._border(b, d_bvar, d_brow)
-        partial = BandedFactors(b, d_var, d_row, d_bvar, d_brow, sinv, gain, bmat, bmat, jnp.zeros_like(cmat))
-        if not cmat.shape[0]:  # no border
-            return partial, _Inertia(*(jnp.sum(a) for a in core))
-        tinv_b = self._core_solve(partial, bmat)
-        schur_inv, lam_b = _inverse(cmat - jnp.einsum("ksp,ksq->pq", bmat, tinv_b))
-        border = _counts(lam_b)
-        inertia = _Inertia(*(jnp.sum(a) + jnp.sum(c) for a, c in zip(core, border)))
-        return partial._replace(tinv_b=tinv_b, schur_inv=schur_inv), inertia
+        f = BandedFactors(b, d_var, d_row, d_bvar, d_brow, core, bmat, bmat, jnp.zeros_like(cmat))
+        if cmat.shape[0]:
+            tinv_b = tri.solve(core, bmat)
+            schur_inv, border, _ = tri.pivot(cmat - jnp.einsum("ksp,ksq->pq", bmat, tinv_b), d_bvar.shape[0], "auto")
+            f, counts = f._replace(tinv_b=tinv_b, schur_inv=schur_inv), counts + border
+        return f, _Inertia(*(counts[i] for i in range(3)))
 
     def _right(self, inertia: _Inertia) -> jax.Array:
         return (inertia.positive == self.expect_pos) & (inertia.negative == self.expect_neg) & (inertia.zero == 0)
@@ -215,31 +175,8 @@ class Banded:
 
     # ---- solves ------------------------------------------------------------------------------------------------
 
-    def _core_solve(self, f: BandedFactors, r):
-        """``K_core^{-1} r`` for ``r`` of shape ``(K, s)`` or ``(K, s, q)``: forward, diagonal and backward sweeps."""
-        if r.ndim == 2:
-            return self._core_solve(f, r[:, :, None])[:, :, 0]
-
-        def forward(y_prev, inp):
-            r_k, g_prev = inp
-            y = r_k - jnp.swapaxes(g_prev, -1, -2) @ y_prev
-            return y, y
-
-        g_prev = jnp.concatenate([jnp.zeros_like(f.sinv[:1]), f.gain], axis=0)
-        _, y = jax.lax.scan(forward, jnp.zeros_like(r[0]), (r, g_prev))
-        w = f.sinv @ y
-
-        def backward(x_next, inp):
-            w_k, g_k = inp
-            x = w_k - g_k @ x_next
-            return x, x
-
-        g_next = jnp.concatenate([f.gain, jnp.zeros_like(f.sinv[:1])], axis=0)
-        _, x = jax.lax.scan(backward, jnp.zeros_like(r[0]), (w, g_next), reverse=True)
-        return x
-
     def _solve_stages(self, f: BandedFactors, rc, rb):
-        u = self._core_solve(f, rc)
+        u = tri.solve(f.core, rc)
         if not rb.shape[0]:
             return u, rb
         xb = f.schur_inv @ (rb - jnp.einsum("ksq,ks->q", f.bmat, u))

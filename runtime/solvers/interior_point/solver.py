@@ -159,10 +159,13 @@ class InteriorPoint(PureNLPSolver):
         return CPU_CHUNK if len(jax.devices()) < 2 else CPU_CHUNK_SHARED
 
     def kkt_method(self, nlp: NLP, vmapped: bool = False) -> str:
-        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: stage-wise (Riccati) for a
-        vmapped batch of an NLP that allows it, dense otherwise (see the class docstring)."""
+        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for an NLP
+        with a stage structure (collocation, multiple shooting), stage-wise (Riccati) for a vmapped batch of an NLP
+        that allows it, dense otherwise (see the class docstring)."""
         if self.kkt != "auto":
             return self.kkt
+        if isinstance(nlp, NLP) and nlp.stage_structure is not None:
+            return "banded"
         return "riccati" if vmapped and _stagewise(nlp) else "dense"
 
     def outcome(self, out: InteriorPointSolution, z: np.ndarray, objective: float,
