@@ -61,9 +61,11 @@ class InteriorPoint(PureNLPSolver):
 
     Pure tier: :meth:`solve_fn` is the jit-compiled ``(data, z0) ->`` :class:`InteriorPointSolution`;
     :meth:`solve_batch` runs a batch as one program: ``batch="vmap"`` vectorises the members, ``batch="map"`` solves
-    them in turn. The Newton system is dense (:mod:`.kkt`) or, for single shooting without path rows, slacks or free
-    time, stage by stage (:mod:`.riccati`: a Riccati recursion, the same certificate and steps); ``kkt="auto"``
-    (the default) takes the stage-wise step in vmapped batches and the dense one elsewhere, and ``batch="auto"``
+    them in turn. The Newton system is dense (:mod:`.kkt`), block-tridiagonal for collocation and multiple shooting
+    (:mod:`.banded`: stage by stage, the exact inertia, cost linear in the number of stages) or, for single shooting
+    without path rows, slacks or free time, stage by stage (:mod:`.riccati`: a Riccati recursion, the same
+    certificate and steps); ``kkt="auto"`` (the default) takes the banded step for collocation and multiple
+    shooting, the Riccati step in vmapped batches of single shooting and the dense one elsewhere, and ``batch="auto"``
     vmaps on an accelerator and, on a CPU, vmaps where the stage-wise step applies and maps otherwise (the
     stage-wise step vectorises across a batch where dense Cholesky factorisations do not, but a single solve is
     slower with it).
@@ -76,8 +78,8 @@ class InteriorPoint(PureNLPSolver):
         max_iter: the iteration limit.
         second_order_correction: try one second-order correction when the full step is rejected.
         batch: how :meth:`solve_batch` runs its members: ``"auto"``, ``"vmap"`` or ``"map"`` (above).
-        kkt: the Newton system's method: ``"auto"``, ``"dense"`` or ``"riccati"`` (above; ``"riccati"`` raises for
-            an NLP without the stage structure).
+        kkt: the Newton system's method: ``"auto"``, ``"dense"``, ``"riccati"`` or ``"banded"`` (above;
+            ``"riccati"`` and ``"banded"`` raise for an NLP without their structure).
         chunk: how many members a vmapped batch keeps in flight (on each device; a stopped member's place is taken
             by the next waiting one): ``"auto"`` (``CPU_CHUNK`` on a CPU, ``CPU_CHUNK_SHARED`` over several host
             devices, all at once on an accelerator), ``None`` (all at once) or a positive int.
@@ -159,14 +161,16 @@ class InteriorPoint(PureNLPSolver):
         return CPU_CHUNK if len(jax.devices()) < 2 else CPU_CHUNK_SHARED
 
     def kkt_method(self, nlp: NLP, vmapped: bool = False) -> str:
-        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for an NLP
-        with a stage structure (collocation, multiple shooting), stage-wise (Riccati) for a vmapped batch of an NLP
-        that allows it, dense otherwise (see the class docstring)."""
+        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for a solve
+        (or a mapped batch's member) of an NLP with a stage structure (collocation, multiple shooting), stage-wise
+        (Riccati) for a vmapped batch of an NLP that allows it, dense otherwise (see the class docstring). A vmapped
+        batch of collocation NLPs stays dense: under ``vmap`` the banded pivots' ``cond`` runs both branches, and that
+        trade is not measured yet."""
         if self.kkt != "auto":
             return self.kkt
-        if isinstance(nlp, NLP) and nlp.stage_structure is not None:
-            return "banded"
-        return "riccati" if vmapped and _stagewise(nlp) else "dense"
+        if vmapped:
+            return "riccati" if _stagewise(nlp) else "dense"
+        return "banded" if isinstance(nlp, NLP) and nlp.stage_structure is not None else "dense"
 
     def outcome(self, out: InteriorPointSolution, z: np.ndarray, objective: float,
                 violation: float) -> tuple[Status, int, str]:
