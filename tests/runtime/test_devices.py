@@ -14,7 +14,9 @@ pytestmark = pytest.mark.slow  # not in `make test-fast`: a fresh process compil
 
 SCRIPT = textwrap.dedent("""
     import os
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=2"
+    # Two host devices, and the suite's quick compilation (tests/conftest.py: the same programs, compiled faster)
+    os.environ["XLA_FLAGS"] = ("--xla_force_host_platform_device_count=2 --xla_cpu_use_fusion_emitters=false "
+                               "--xla_backend_optimization_level=0")
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
     from myriad.runtime import load, solve, solve_batch
