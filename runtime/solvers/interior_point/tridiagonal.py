@@ -74,6 +74,56 @@ def _cholesky_inverse(sym, a: int) -> tuple[jax.Array, jax.Array]:
 
 
 def _cholesky_inverse_scaled(sym, a: int) -> tuple[jax.Array, jax.Array]:
+    """Three ways to two Cholesky factors, any of which certifies the inertia ``(a, b, 0)``: the rows first (``-R``
+    and ``P - Q^T R^{-1} Q``: rows whose block is negative definite, the common case after the previous stage's
+    elimination, certified where the variables are convex on the rows' null space only), the variables first
+    (``P`` and ``Q P^{-1} Q^T - R``: rows with a singular block, such as a first stage's), or :func:`_shifted`."""
+    s = sym.shape[0]
+    if a in (0, s):  # definite alone: positive (all variables) or negative (all rows)
+        sign = 1.0 if a else -1.0
+        chol, ok = bl.cholesky_array(sign * sym)
+        return sign * bl.cho_solve_array(chol, jnp.eye(s, dtype=sym.dtype)), ok & _clear(chol, sign * sym)
+    inv_rows, ok_rows = _rows_first(sym, a)
+    inv_vars, ok_vars = _vars_first(sym, a)
+    inv_shift, ok_shift = _shifted(sym, a)
+    inv = jnp.where(ok_rows, inv_rows, jnp.where(ok_vars, inv_vars, inv_shift))
+    return inv, ok_rows | ok_vars | ok_shift
+
+
+def _shifted(sym, a: int) -> tuple[jax.Array, jax.Array]:
+    """The variables first after the congruence ``C^T S C``, ``C = [I 0; rho Q I]``: its leading block is ``P + 2 rho
+    Q^T Q + rho^2 Q^T R Q``, positive definite for a large ``rho`` wherever ``P`` is on the rows' null space and
+    ``R`` is small (a chunk's first stage, which no elimination has updated yet: ``R = -delta_c``). A congruence keeps
+    the inertia whatever ``rho``; ``rho`` only trades accuracy (the step's refinement)."""
+    q = sym[a:, :a]
+    rho = 10.0 / jnp.maximum(jnp.max(jnp.sum(q * q, axis=1), initial=0.0), 1e-12)
+    c = jnp.eye(sym.shape[0], dtype=sym.dtype).at[a:, :a].set(rho * q)
+    inv_t, ok = _vars_first(c.T @ sym @ c, a)
+    return c @ inv_t @ c.T, ok
+
+
+def _clear(chol, mat) -> jax.Array:
+    """Every Cholesky pivot squared above ``ZERO_PIVOT`` times its diagonal entry (no near-singular pivot)."""
+    piv = jnp.diagonal(chol) ** 2 / jnp.maximum(jnp.abs(jnp.diagonal(mat)), 1e-300)
+    return jnp.min(piv, initial=1.0) > ZERO_PIVOT
+
+
+def _rows_first(sym, a: int) -> tuple[jax.Array, jax.Array]:
+    p, q, r = sym[:a, :a], sym[a:, :a], sym[a:, a:]
+    dtype = sym.dtype
+    chol_n, ok_n = bl.cholesky_array(-r)
+    k = bl.cho_solve_array(chol_n, q)  # N^{-1} Q, N = -R
+    hat = p + q.T @ k
+    chol_h, ok_h = bl.cholesky_array(hat)
+    f = bl.cho_solve_array(chol_h, k.T)  # hat^{-1} Q^T N^{-1}
+    h_inv = bl.cho_solve_array(chol_h, jnp.eye(a, dtype=dtype))
+    n_inv = bl.cho_solve_array(chol_n, jnp.eye(r.shape[0], dtype=dtype))
+    inv = jnp.concatenate([jnp.concatenate([h_inv, f], axis=1), jnp.concatenate([f.T, k @ f - n_inv], axis=1)],
+                          axis=0)
+    return inv, ok_n & ok_h & _clear(chol_n, -r) & _clear(chol_h, hat)
+
+
+def _vars_first(sym, a: int) -> tuple[jax.Array, jax.Array]:
     p, q, r = sym[:a, :a], sym[a:, :a], sym[a:, a:]
     dtype = sym.dtype
     chol_p, ok_p = bl.cholesky_array(p)
@@ -85,12 +135,7 @@ def _cholesky_inverse_scaled(sym, a: int) -> tuple[jax.Array, jax.Array]:
     p_inv = bl.cho_solve_array(chol_p, jnp.eye(a, dtype=dtype))
     inv = jnp.concatenate([jnp.concatenate([p_inv - gm @ g.T, gm], axis=1),
                            jnp.concatenate([gm.T, -m_inv], axis=1)], axis=0)
-
-    def clear(chol, mat):
-        piv = jnp.diagonal(chol) ** 2 / jnp.maximum(jnp.abs(jnp.diagonal(mat)), 1e-300)
-        return jnp.min(piv, initial=1.0) > ZERO_PIVOT
-
-    return inv, ok_p & ok_m & clear(chol_p, p) & clear(chol_m, m)
+    return inv, ok_p & ok_m & _clear(chol_p, p) & _clear(chol_m, m)
 
 
 def pivot(sym, a: int, mode: str) -> tuple[jax.Array, jax.Array, jax.Array]:
