@@ -86,10 +86,11 @@ def test_step_and_inertia_against_dense(shared, negative):
     n_x, m = hess.shape[0], jac.shape[0]
     rng = np.random.default_rng(1)
     v = jnp.asarray(rng.standard_normal(n_x))
-    np.testing.assert_allclose(ric.hvp(stages, v), hess @ v, rtol=1e-12, atol=1e-12)
+    # Every JAX call here one compiled program: op by op they took most of the test's seconds.
+    np.testing.assert_allclose(jax.jit(ric.hvp)(stages, v), hess @ v, rtol=1e-12, atol=1e-12)
 
     factors, delta_w, ok = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0)
-    _, delta_w_dense, _ = kkt.factorize_with_inertia(jnp.asarray(hess), sigma, jac, 1e-3, 0.0)
+    _, delta_w_dense, _ = jax.jit(kkt.factorize_with_inertia)(jnp.asarray(hess), sigma, jac, 1e-3, 0.0)
     assert ok and float(delta_w) == float(delta_w_dense)
     h_s = hess + np.diag(np.asarray(sigma)) + float(delta_w) * np.eye(n_x)
     big = np.block([[h_s, np.asarray(jac).T], [np.asarray(jac), -float(factors.delta_c) * np.eye(m)]])
@@ -98,12 +99,13 @@ def test_step_and_inertia_against_dense(shared, negative):
         smaller = big - (1 - 1 / rules.GROW_FIRST) * float(delta_w) * np.diag(np.r_[np.ones(n_x), np.zeros(m)])
         assert _inertia(smaller) != (n_x, m)
     r1, r2 = rng.standard_normal(n_x), rng.standard_normal(m)
-    dx, dl = ric.solve(factors, jac, jnp.asarray(r1), jnp.asarray(r2))
+    solve = jax.jit(ric.solve, static_argnames="presolved")
+    dx, dl = solve(factors, jac, jnp.asarray(r1), jnp.asarray(r2))
     expected = np.linalg.solve(big, np.concatenate([r1, r2]))
     np.testing.assert_allclose(np.concatenate([dx, dl]), expected, rtol=1e-10, atol=1e-10 * np.abs(expected).max())
     # r1 solved with the Schur complement's columns: the same step (H^-1 (r1 + rho A^T r2), split by linearity).
     pre, _, _ = jax.jit(ric.factorize_with_inertia)(stages, sigma, jac, 1e-3, 0.0, jnp.asarray(r1))
-    dx_p, dl_p = ric.solve(pre, jac, jnp.asarray(r1), jnp.asarray(r2), presolved=True)
+    dx_p, dl_p = solve(pre, jac, jnp.asarray(r1), jnp.asarray(r2), presolved=True)
     np.testing.assert_allclose(np.concatenate([dx_p, dl_p]), expected, rtol=1e-10,
                                atol=1e-10 * np.abs(expected).max())
 
