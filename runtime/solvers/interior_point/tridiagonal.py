@@ -15,8 +15,8 @@ left separator; what is left is a block-tridiagonal system on the ``P + 1`` sepa
 **Pivots.** A pivot ``S = [P Q^T; Q R]`` (``a`` leading rows, the stage's variables) is first inverted from two
 Cholesky factors, of ``P`` and of ``Q P^{-1} Q^T - R``: when both exist with pivots clear of zero, ``S``'s inertia is
 ``(a, s - a, 0)`` (Haynsworth) with no eigendecomposition (a LAPACK call of ~10 us against the unrolled factors'
-fraction of that). Where a chunk phase's pivot is not so certified, the whole factorisation is redone with
-eigendecompositions (``exact``), which count any inertia; the separators' system decides pivot by pivot.
+fraction of that). Where a pivot is not so certified, the whole factorisation is redone with eigendecompositions
+(``exact``), which count any inertia: one copy of each kind of pivot in the program (compile time).
 """
 
 from __future__ import annotations
@@ -74,20 +74,20 @@ def _cholesky_inverse(sym, a: int) -> tuple[jax.Array, jax.Array]:
 
 
 def _cholesky_inverse_scaled(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    """Three ways to two Cholesky factors, any of which certifies the inertia ``(a, b, 0)``: the rows first (``-R``
+    """Two ways to two Cholesky factors, either of which certifies the inertia ``(a, b, 0)``: the rows first (``-R``
     and ``P - Q^T R^{-1} Q``: rows whose block is negative definite, the common case after the previous stage's
-    elimination, certified where the variables are convex on the rows' null space only), the variables first
-    (``P`` and ``Q P^{-1} Q^T - R``: rows with a singular block, such as a first stage's), or :func:`_shifted`."""
+    elimination, certified where the variables are convex on the rows' null space only), or the variables first
+    after a shift (:func:`_shifted`: rows with a singular block, such as a chunk's first stage's). Why only two:
+    each is unrolled code in every copy of the elimination (a third, the plain variables-first order, cost 2 s of
+    XLA compile time and is the shift's ``rho = 0``)."""
     s = sym.shape[0]
     if a in (0, s):  # definite alone: positive (all variables) or negative (all rows)
         sign = 1.0 if a else -1.0
         chol, ok = bl.cholesky_array(sign * sym)
         return sign * bl.cho_solve_array(chol, jnp.eye(s, dtype=sym.dtype)), ok & _clear(chol, sign * sym)
     inv_rows, ok_rows = _rows_first(sym, a)
-    inv_vars, ok_vars = _vars_first(sym, a)
     inv_shift, ok_shift = _shifted(sym, a)
-    inv = jnp.where(ok_rows, inv_rows, jnp.where(ok_vars, inv_vars, inv_shift))
-    return inv, ok_rows | ok_vars | ok_shift
+    return jnp.where(ok_rows, inv_rows, inv_shift), ok_rows | ok_shift
 
 
 def _shifted(sym, a: int) -> tuple[jax.Array, jax.Array]:
@@ -95,8 +95,10 @@ def _shifted(sym, a: int) -> tuple[jax.Array, jax.Array]:
     Q^T Q + rho^2 Q^T R Q``, positive definite for a large ``rho`` wherever ``P`` is on the rows' null space and
     ``R`` is small (a chunk's first stage, which no elimination has updated yet: ``R = -delta_c``). A congruence keeps
     the inertia whatever ``rho``; ``rho`` only trades accuracy (the step's refinement)."""
-    q = sym[a:, :a]
-    rho = 10.0 / jnp.maximum(jnp.max(jnp.sum(q * q, axis=1), initial=0.0), 1e-12)
+    q, r = sym[a:, :a], sym[a:, a:]
+    # 2 rho - rho^2 |R| >= rho: the shift adds at least rho Q^T Q (and rho = 0 keeps the plain variables-first order)
+    rho = jnp.minimum(10.0 / jnp.maximum(jnp.max(jnp.sum(q * q, axis=1), initial=0.0), 1e-12),
+                      1.0 / jnp.maximum(jnp.max(jnp.abs(r), initial=0.0), 1e-12))
     c = jnp.eye(sym.shape[0], dtype=sym.dtype).at[a:, :a].set(rho * q)
     inv_t, ok = _vars_first(c.T @ sym @ c, a)
     return c @ inv_t @ c.T, ok
@@ -250,9 +252,9 @@ def _partitioned(d, e, a: int, stride_: int, mode: str):
         lambda *args: _chunk(*args, a, mode))(d_i, e_chain, e_left, e_right)
     zero = jnp.zeros_like(u_left[:1])
     d_s = d[::big_l] - jnp.concatenate([u_left, zero]) - jnp.concatenate([zero, u_right])
-    seps, counts_s, _ = _eliminate(d_s, coupling, a, "auto")
+    seps, counts_s, ok_s = _eliminate(d_s, coupling, a, mode)
     counts = jnp.sum(counts_i, axis=0) + jnp.sum(counts_s, axis=0)
-    return Factors(chunks, e_left, e_right, seps), counts, jnp.all(ok_i)
+    return Factors(chunks, e_left, e_right, seps), counts, jnp.all(ok_i) & jnp.all(ok_s)
 
 
 def factor(d, e, a: int) -> tuple[Factors, jax.Array]:
