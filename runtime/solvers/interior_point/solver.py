@@ -24,6 +24,10 @@ __all__ = ["InteriorPoint"]
 # A vmapped batch on a CPU runs in chunks of CPU_CHUNK members (a wide batch's stage data streams from memory on every
 # sweep), of CPU_CHUNK_SHARED where the batch is spread over several host devices (they share the caches). Measured:
 # docs/notes/2026-12-05-solver-code-measurements.md.
+# A single solve of single shooting takes the Riccati step from this many rollout steps (the published settings'
+# 100 stay dense): Van der Pol, warm, 2-core AMD EPYC at load 4 (2026-12-06): 100 steps 0.017 s dense against
+# 0.032 s Riccati, 400: 0.204 against 0.146, 800: 1.32 against 0.19 (dense grows like N^3, the recursion like N).
+RICCATI_SINGLE_MIN = 250
 CPU_CHUNK = 128
 CPU_CHUNK_SHARED = 48
 
@@ -65,7 +69,8 @@ class InteriorPoint(PureNLPSolver):
     (:mod:`.banded`: stage by stage, the exact inertia, cost linear in the number of stages) or, for single shooting
     without path rows, slacks or free time, stage by stage (:mod:`.riccati`: a Riccati recursion, the same
     certificate and steps); ``kkt="auto"`` (the default) takes the banded step for collocation and multiple
-    shooting, the Riccati step in vmapped batches of single shooting and the dense one elsewhere, and ``batch="auto"``
+    shooting, the Riccati step in vmapped batches of single shooting and in its single solves from
+    ``RICCATI_SINGLE_MIN`` steps, and the dense one elsewhere, and ``batch="auto"``
     vmaps on an accelerator and, on a CPU, vmaps where the stage-wise step applies and maps otherwise (the
     stage-wise step vectorises across a batch where dense Cholesky factorisations do not, but a single solve is
     slower with it).
@@ -163,14 +168,18 @@ class InteriorPoint(PureNLPSolver):
     def kkt_method(self, nlp: NLP, vmapped: bool = False) -> str:
         """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for a solve
         (or a mapped batch's member) of an NLP with a stage structure (collocation, multiple shooting), stage-wise
-        (Riccati) for a vmapped batch of an NLP that allows it, dense otherwise (see the class docstring). A vmapped
+        (Riccati) for a vmapped batch or a large single solve (``RICCATI_SINGLE_MIN`` steps) of an NLP that
+        allows it, dense otherwise (see the class docstring). A vmapped
         batch of collocation NLPs stays dense: under ``vmap`` the banded pivots' ``cond`` runs both branches, and that
         trade is not measured yet."""
         if self.kkt != "auto":
             return self.kkt
         if vmapped:
             return "riccati" if _stagewise(nlp) else "dense"
-        return "banded" if isinstance(nlp, NLP) and nlp.stage_structure is not None else "dense"
+        if isinstance(nlp, NLP) and nlp.stage_structure is not None:
+            return "banded"
+        large = isinstance(nlp, NLP) and nlp.stage_index is not None and len(nlp.stage_index) >= RICCATI_SINGLE_MIN
+        return "riccati" if large and _stagewise(nlp) else "dense"
 
     def outcome(self, out: InteriorPointSolution, z: np.ndarray, objective: float,
                 violation: float) -> tuple[Status, int, str]:
