@@ -190,3 +190,19 @@ def test_partitioned_elimination_counts_and_solves(k, shift):
     x = jax.jit(tridiagonal.solve)(factors, jnp.asarray(r))
     exact = np.linalg.solve(dense, r.reshape(-1)).reshape(k, 5)
     np.testing.assert_allclose(x, exact, rtol=1e-9, atol=1e-9 * np.abs(exact).max())
+
+
+def test_auto_takes_the_structure_each_nlp_has():
+    """``kkt="auto"``: banded for collocation and multiple shooting, Riccati for long single shooting (a single solve
+    or a vmapped batch), dense for the published single-shooting grids and vmapped collocation batches."""
+    from myriad.runtime.transcriptions import HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
+
+    system = case("trapezoidal-vdp")[0]
+    solver = InteriorPoint()
+    for transcription in (Trapezoidal(intervals=8), HermiteSimpson(intervals=8), MultipleShooting(intervals=8)):
+        nlp = transcription.transcribe(system)
+        assert solver.kkt_method(nlp) == "banded" and solver.kkt_method(nlp, vmapped=True) == "dense"
+    short, long = (SingleShooting(intervals=n).transcribe(system) for n in (100, 300))
+    assert solver.kkt_method(short) == "dense" and solver.kkt_method(long) == "riccati"
+    assert solver.kkt_method(short, vmapped=True) == "riccati"
+    assert InteriorPoint(kkt="dense").kkt_method(long) == "dense"
