@@ -132,7 +132,7 @@ class Banded:
         f = BandedFactors(b, d_var, d_row, d_bvar, d_brow, core, bmat, bmat, jnp.zeros_like(cmat))
         if cmat.shape[0]:
             tinv_b = tri.solve(core, bmat)
-            schur_inv, border, _ = tri.pivot(cmat - jnp.einsum("ksp,ksq->pq", bmat, tinv_b), d_bvar.shape[0], "auto")
+            schur_inv, border = tri.pivot(cmat - jnp.einsum("ksp,ksq->pq", bmat, tinv_b))
             f, counts = f._replace(tinv_b=tinv_b, schur_inv=schur_inv), counts + border
         return f, _Inertia(*(counts[i] for i in range(3)))
 

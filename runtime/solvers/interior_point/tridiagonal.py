@@ -4,19 +4,21 @@ The matrix has diagonal blocks ``D_k`` (``K`` of them, each ``s x s``, symmetric
 M[block k, block k + 1]``. Block Gaussian elimination is a congruence, so by Sylvester's law the matrix's inertia is
 the sum of the pivot blocks' inertias; each pivot is inverted by :func:`pivot`.
 
-**Partitioned elimination** (why: a sequential sweep is one ``lax.scan`` step per block, and on a CPU such a step
-costs its kernels' launches, ~8 us, whatever the block's arithmetic; 1600 blocks took 12.5 ms where the arithmetic
-alone, vmapped, took 0.3 ms). Every ``L``-th block is a separator; the ``L - 1`` blocks between two separators (a
-chunk) are eliminated first, all chunks at once (``vmap``) in ``L - 1`` steps, carrying the fill towards the chunk's
-left separator; what is left is a block-tridiagonal system on the ``P + 1`` separators, eliminated in turn. Depth
-``~2 sqrt(K)`` instead of ``K``; the same arithmetic, about twice over. The elimination order is a permutation
-(interiors, then separators), so the counted inertia is still exact.
+**Partitioned elimination** (why: a sequential sweep is one ``lax.scan`` step per block, and on a CPU a step pays
+its kernels' launches, ~3 us, besides its arithmetic; on an accelerator the depth is what counts). Every ``L``-th
+block is a separator; the ``L - 1`` blocks between two separators (a chunk) are eliminated first, all chunks at once
+(``vmap``) in ``L - 1`` steps, carrying the fill towards the chunk's left separator; what is left is a block-
+tridiagonal system on the ``P + 1`` separators, eliminated in turn. Depth ``~2 sqrt(K)`` instead of ``K``; about the
+same arithmetic. The elimination order is a permutation (interiors, then separators), so the counted inertia is
+still exact. On the 2-core CPU it gains 10-20 % (Van der Pol's Hermite-Simpson factorisation, blocks of 6: 1601
+stages 12.2 -> 10.5 ms, 6401 stages 44.7 -> 40.1 ms, load 1.5): the eigendecompositions' arithmetic dominates there.
 
-**Pivots.** A pivot ``S = [P Q^T; Q R]`` (``a`` leading rows, the stage's variables) is first inverted from two
-Cholesky factors, of ``P`` and of ``Q P^{-1} Q^T - R``: when both exist with pivots clear of zero, ``S``'s inertia is
-``(a, s - a, 0)`` (Haynsworth) with no eigendecomposition (a LAPACK call of ~10 us against the unrolled factors'
-fraction of that). Where a pivot is not so certified, the whole factorisation is redone with eigendecompositions
-(``exact``), which count any inertia: one copy of each kind of pivot in the program (compile time).
+**Pivots** are inverted through their eigendecomposition, which also counts their inertia. Tried and dropped: two
+Cholesky factors that certify the inertia ``(a, s - a, 0)`` where they exist, with the eigendecomposition as the
+fallback. Vmapped across the chunks the unrolled factors ran no faster than batched eigendecompositions (1601 blocks
+of 5: 6.9 against 7.3 ms), the fallback re-ran the whole elimination wherever a stage's own inertia differed from
+``(a, s - a)`` (the matrix's may still be right: half of Van der Pol's Trapezoidal(400) factorisations), and they
+doubled the program's XLA compile time (Hermite-Simpson(50): 17.1 against 8.2 s of CPU).
 """
 
 from __future__ import annotations
@@ -25,8 +27,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-
-from . import blocks as bl
 
 __all__ = ["Factors", "factor", "solve", "pivot", "stride"]
 
@@ -65,96 +65,9 @@ def _equilibration(sym) -> jax.Array:
     return 1.0 / jnp.sqrt(jnp.where(big > 0.0, big, 1.0))
 
 
-def _cholesky_inverse(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    """``(S^{-1}, certified)`` from Cholesky factors of ``P`` and ``M = Q P^{-1} Q^T - R`` of the equilibrated
-    ``D S D`` (the module docstring; equilibrated for the reason :func:`_eigen_inverse` gives)."""
-    scale = _equilibration(sym)
-    inv, ok = _cholesky_inverse_scaled(scale[:, None] * sym * scale[None, :], a)
-    return scale[:, None] * inv * scale[None, :], ok
-
-
-def _cholesky_inverse_scaled(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    """Two ways to two Cholesky factors, either of which certifies the inertia ``(a, b, 0)``: the rows first (``-R``
-    and ``P - Q^T R^{-1} Q``: rows whose block is negative definite, the common case after the previous stage's
-    elimination, certified where the variables are convex on the rows' null space only), or the variables first
-    after a shift (:func:`_shifted`: rows with a singular block, such as a chunk's first stage's). Why only two:
-    each is unrolled code in every copy of the elimination (a third, the plain variables-first order, cost 2 s of
-    XLA compile time and is the shift's ``rho = 0``)."""
-    s = sym.shape[0]
-    if a in (0, s):  # definite alone: positive (all variables) or negative (all rows)
-        sign = 1.0 if a else -1.0
-        chol, ok = bl.cholesky_array(sign * sym)
-        return sign * bl.cho_solve_array(chol, jnp.eye(s, dtype=sym.dtype)), ok & _clear(chol, sign * sym)
-    inv_rows, ok_rows = _rows_first(sym, a)
-    inv_shift, ok_shift = _shifted(sym, a)
-    return jnp.where(ok_rows, inv_rows, inv_shift), ok_rows | ok_shift
-
-
-def _shifted(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    """The variables first after the congruence ``C^T S C``, ``C = [I 0; rho Q I]``: its leading block is ``P + 2 rho
-    Q^T Q + rho^2 Q^T R Q``, positive definite for a large ``rho`` wherever ``P`` is on the rows' null space and
-    ``R`` is small (a chunk's first stage, which no elimination has updated yet: ``R = -delta_c``). A congruence keeps
-    the inertia whatever ``rho``; ``rho`` only trades accuracy (the step's refinement)."""
-    q, r = sym[a:, :a], sym[a:, a:]
-    # 2 rho - rho^2 |R| >= rho: the shift adds at least rho Q^T Q (and rho = 0 keeps the plain variables-first order)
-    rho = jnp.minimum(10.0 / jnp.maximum(jnp.max(jnp.sum(q * q, axis=1), initial=0.0), 1e-12),
-                      1.0 / jnp.maximum(jnp.max(jnp.abs(r), initial=0.0), 1e-12))
-    c = jnp.eye(sym.shape[0], dtype=sym.dtype).at[a:, :a].set(rho * q)
-    inv_t, ok = _vars_first(c.T @ sym @ c, a)
-    return c @ inv_t @ c.T, ok
-
-
-def _clear(chol, mat) -> jax.Array:
-    """Every Cholesky pivot squared above ``ZERO_PIVOT`` times its diagonal entry (no near-singular pivot)."""
-    piv = jnp.diagonal(chol) ** 2 / jnp.maximum(jnp.abs(jnp.diagonal(mat)), 1e-300)
-    return jnp.min(piv, initial=1.0) > ZERO_PIVOT
-
-
-def _rows_first(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    p, q, r = sym[:a, :a], sym[a:, :a], sym[a:, a:]
-    dtype = sym.dtype
-    chol_n, ok_n = bl.cholesky_array(-r)
-    k = bl.cho_solve_array(chol_n, q)  # N^{-1} Q, N = -R
-    hat = p + q.T @ k
-    chol_h, ok_h = bl.cholesky_array(hat)
-    f = bl.cho_solve_array(chol_h, k.T)  # hat^{-1} Q^T N^{-1}
-    h_inv = bl.cho_solve_array(chol_h, jnp.eye(a, dtype=dtype))
-    n_inv = bl.cho_solve_array(chol_n, jnp.eye(r.shape[0], dtype=dtype))
-    inv = jnp.concatenate([jnp.concatenate([h_inv, f], axis=1), jnp.concatenate([f.T, k @ f - n_inv], axis=1)],
-                          axis=0)
-    return inv, ok_n & ok_h & _clear(chol_n, -r) & _clear(chol_h, hat)
-
-
-def _vars_first(sym, a: int) -> tuple[jax.Array, jax.Array]:
-    p, q, r = sym[:a, :a], sym[a:, :a], sym[a:, a:]
-    dtype = sym.dtype
-    chol_p, ok_p = bl.cholesky_array(p)
-    g = bl.cho_solve_array(chol_p, q.T)  # P^{-1} Q^T
-    m = q @ g - r
-    chol_m, ok_m = bl.cholesky_array(m)
-    m_inv = bl.cho_solve_array(chol_m, jnp.eye(r.shape[0], dtype=dtype))
-    gm = g @ m_inv
-    p_inv = bl.cho_solve_array(chol_p, jnp.eye(a, dtype=dtype))
-    inv = jnp.concatenate([jnp.concatenate([p_inv - gm @ g.T, gm], axis=1),
-                           jnp.concatenate([gm.T, -m_inv], axis=1)], axis=0)
-    return inv, ok_p & ok_m & _clear(chol_p, p) & _clear(chol_m, m)
-
-
-def pivot(sym, a: int, mode: str) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """``(S^{-1}, counts (positive, negative, zero), certified)`` of a symmetric pivot block: ``mode`` ``"fast"``
-    (Cholesky factors; counts ``(a, s - a, 0)``, meaningful only where certified), ``"exact"`` (eigenvalues) or
-    ``"auto"`` (fast, else exact, by ``lax.cond``)."""
-    sym = 0.5 * (sym + sym.T)
-    s = sym.shape[0]
-    if mode == "exact":
-        inv, counts = _eigen_inverse(sym)
-        return inv, counts, jnp.array(True)
-    inv, ok = _cholesky_inverse(sym, a)
-    certain = jnp.array([a, s - a, 0])
-    if mode == "fast":
-        return inv, certain, ok
-    inv, counts = jax.lax.cond(ok, lambda: (inv, certain), lambda: _eigen_inverse(sym))
-    return inv, counts, jnp.array(True)
+def pivot(sym) -> tuple[jax.Array, jax.Array]:
+    """``(S^{-1}, counts (positive, negative, zero))`` of a symmetric pivot block."""
+    return _eigen_inverse(0.5 * (sym + sym.T))
 
 
 # ---- sequential elimination --------------------------------------------------------------------------------------
@@ -166,17 +79,17 @@ class Chain(NamedTuple):
     gain: jax.Array  # (K - 1, s, s)
 
 
-def _eliminate(d, e, a: int, mode: str):
-    """``(Chain, counts (K, 3), certified (K,))`` of blocks ``d`` (K, s, s) and couplings ``e`` (K - 1, s, s)."""
+def _eliminate(d, e):
+    """``(Chain, counts (K, 3))`` of blocks ``d`` (K, s, s) and couplings ``e`` (K - 1, s, s)."""
     e_prev = jnp.concatenate([jnp.zeros_like(d[:1]), e], axis=0)
 
     def step(sinv_prev, inp):
         d_k, e_k = inp
-        sinv, counts, ok = pivot(d_k - e_k.T @ sinv_prev @ e_k, a, mode)
-        return sinv, (sinv, counts, ok)
+        sinv, counts = pivot(d_k - e_k.T @ sinv_prev @ e_k)
+        return sinv, (sinv, counts)
 
-    _, (sinv, counts, ok) = jax.lax.scan(step, jnp.zeros_like(d[0]), (d, e_prev))
-    return Chain(sinv, sinv[:-1] @ e), counts, ok
+    _, (sinv, counts) = jax.lax.scan(step, jnp.zeros_like(d[0]), (d, e_prev))
+    return Chain(sinv, sinv[:-1] @ e), counts
 
 
 def _chain_solve(c: Chain, r):
@@ -212,9 +125,9 @@ class Factors(NamedTuple):
     seps: Chain
 
 
-def _chunk(d, e_chain, e_left, e_right, a: int, mode: str):
+def _chunk(d, e_chain, e_left, e_right):
     """One chunk's interiors eliminated, carrying their coupling ``X`` to the left separator: ``(Chain, counts,
-    certified, left separator's update, right separator's update, the separators' new coupling)``."""
+    left separator's update, right separator's update, the separators' new coupling)``."""
     e_prev = jnp.concatenate([jnp.zeros_like(d[:1]), e_chain], axis=0)
     first = jnp.arange(d.shape[0]) == 0
 
@@ -222,14 +135,13 @@ def _chunk(d, e_chain, e_left, e_right, a: int, mode: str):
         sinv_prev, x_prev, u_left = carry
         d_t, e_t, is_first = inp
         x = jnp.where(is_first, e_left.T, -e_t.T @ sinv_prev @ x_prev)
-        sinv, counts, ok = pivot(d_t - e_t.T @ sinv_prev @ e_t, a, mode)
-        return (sinv, x, u_left + x.T @ sinv @ x), (sinv, counts, ok)
+        sinv, counts = pivot(d_t - e_t.T @ sinv_prev @ e_t)
+        return (sinv, x, u_left + x.T @ sinv @ x), (sinv, counts)
 
     zero = jnp.zeros_like(d[0])
-    (sinv_l, x_l, u_left), (sinv, counts, ok) = jax.lax.scan(step, (zero, zero, zero), (d, e_prev, first))
+    (sinv_l, x_l, u_left), (sinv, counts) = jax.lax.scan(step, (zero, zero, zero), (d, e_prev, first))
     u_right = e_right.T @ sinv_l @ e_right
-    return (Chain(sinv, sinv[:-1] @ e_chain), jnp.sum(counts, axis=0), jnp.all(ok), u_left, u_right,
-            -x_l.T @ sinv_l @ e_right)
+    return Chain(sinv, sinv[:-1] @ e_chain), jnp.sum(counts, axis=0), u_left, u_right, -x_l.T @ sinv_l @ e_right
 
 
 def _padded(d, e, a: int, big_k: int):
@@ -240,41 +152,33 @@ def _padded(d, e, a: int, big_k: int):
     return d, jnp.concatenate([e, jnp.zeros((big_k - k, s, s), e.dtype)], axis=0)
 
 
-def _partitioned(d, e, a: int, stride_: int, mode: str):
-    """``(Factors, counts (3,), chunk pivots certified)`` with separators every ``stride_`` blocks."""
+def _partitioned(d, e, a: int, stride_: int):
+    """``(Factors, counts (3,))`` with separators every ``stride_`` blocks."""
     big_l, s = stride_, d.shape[1]
     n_chunks = -(-(d.shape[0] - 1) // big_l)
     d, e = _padded(d, e, a, n_chunks * big_l + 1)
     d_i = d[1:].reshape(n_chunks, big_l, s, s)[:, : big_l - 1]
     e_all = e.reshape(n_chunks, big_l, s, s)  # e[jL + t]: block jL + t to jL + t + 1
     e_left, e_chain, e_right = e_all[:, 0], e_all[:, 1: big_l - 1], e_all[:, big_l - 1]
-    chunks, counts_i, ok_i, u_left, u_right, coupling = jax.vmap(
-        lambda *args: _chunk(*args, a, mode))(d_i, e_chain, e_left, e_right)
+    chunks, counts_i, u_left, u_right, coupling = jax.vmap(_chunk)(d_i, e_chain, e_left, e_right)
     zero = jnp.zeros_like(u_left[:1])
     d_s = d[::big_l] - jnp.concatenate([u_left, zero]) - jnp.concatenate([zero, u_right])
-    seps, counts_s, ok_s = _eliminate(d_s, coupling, a, mode)
-    counts = jnp.sum(counts_i, axis=0) + jnp.sum(counts_s, axis=0)
-    return Factors(chunks, e_left, e_right, seps), counts, jnp.all(ok_i) & jnp.all(ok_s)
+    seps, counts_s = _eliminate(d_s, coupling)
+    return Factors(chunks, e_left, e_right, seps), jnp.sum(counts_i, axis=0) + jnp.sum(counts_s, axis=0)
 
 
 def factor(d, e, a: int) -> tuple[Factors, jax.Array]:
     """``(Factors, inertia counts (positive, negative, zero))`` of the block-tridiagonal matrix with blocks ``d``
-    (K, s, s) and couplings ``e`` (K - 1, s, s), ``a``: each block's leading rows that a certified pivot expects
-    positive (the module docstring)."""
+    (K, s, s) and couplings ``e`` (K - 1, s, s); ``a``: how many leading rows of each block are a stage's variables
+    (the padding blocks carry ``+1`` there and ``-1`` on the rest, a known inertia subtracted here)."""
     k, s = d.shape[0], d.shape[1]
     stride_ = stride(k)
     if not stride_:
-        chain, counts, _ = _eliminate(d, e, a, "auto")
+        chain, counts = _eliminate(d, e)
         return Factors(None, None, None, chain), jnp.sum(counts, axis=0)
-    extra = -(-(k - 1) // stride_) * stride_ + 1 - k  # the padding blocks' known inertia (a, s - a, 0) each
-    known = jnp.array([a, s - a, 0]) * extra
-    fast, counts, ok = _partitioned(d, e, a, stride_, "fast")
-
-    def exact():
-        f, c, _ = _partitioned(d, e, a, stride_, "exact")
-        return f, c - known
-
-    return jax.lax.cond(ok, lambda: (fast, counts - known), exact)
+    extra = -(-(k - 1) // stride_) * stride_ + 1 - k
+    factors, counts = _partitioned(d, e, a, stride_)
+    return factors, counts - jnp.array([a, s - a, 0]) * extra
 
 
 def solve(f: Factors, r) -> jax.Array:

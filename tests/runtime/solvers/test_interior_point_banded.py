@@ -179,7 +179,7 @@ def _tridiagonal(k, s, a, seed, shift):
 
 
 @pytest.mark.parametrize("k", [10, 50, 203])  # sequential, and partitioned with a padded last chunk
-@pytest.mark.parametrize("shift", [5.0, -0.5])  # pivots certified by Cholesky factors, or not (eigenvalues)
+@pytest.mark.parametrize("shift", [5.0, -0.5])  # each block's own inertia (3, 2), or not
 def test_partitioned_elimination_counts_and_solves(k, shift):
     from myriad.runtime.solvers.interior_point import tridiagonal
 
