@@ -46,10 +46,17 @@ def test_the_interior_point_agrees_with_both(tmp_path):
 
 
 def test_the_limit_skips_larger_n():
-    states = {"history": [(100, 1.0), (200, 8.0)], "skip": None}  # N^3: 64 s predicted at 400
+    states = {"history": [(100, 1.0, 0.0), (200, 8.0, 0.0)], "skip": None}  # N^3: 64 s predicted at 400
     assert scaling.skip_reason(states, 400, 120.0) is None
     assert "over the limit at N=800" in scaling.skip_reason(states, 800, 120.0)
     assert scaling.skip_reason(states, 1600, 1e9) == states["skip"]  # once skipped, larger N stay skipped
+
+
+def test_a_compile_that_does_not_grow_is_not_extrapolated():
+    """20 s of compile at every N and a linear 0.1 -> 0.4 s solve: 21.6 s predicted at 1600, not 4 x 20."""
+    states = {"history": [(100, 0.1, 20.0), (400, 0.4, 20.0)], "skip": None}
+    assert scaling.predicted_seconds(states["history"], 1600)[0] == pytest.approx(21.6)
+    assert scaling.skip_reason(states, 1600, 90.0) is None
 
 
 def test_kkt_per_transcription():
