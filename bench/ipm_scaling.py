@@ -110,15 +110,19 @@ def casadi_calls(cs, system, name: str, intervals: int, ipopt_options: dict):
 
 
 def predicted_seconds(history: list[tuple[int, float, float]], intervals: int) -> tuple[float, str] | None:
-    """A call's seconds at ``intervals``: the last compile time (it should not grow with N; a first call pays it)
-    plus the solve time extrapolated from the last two measured N (growth at least linear), and from where; None
+    """A call's seconds at ``intervals``: the compile (or CasADi's build) time and the solve time each extrapolated
+    from the last two measured N (the solve growing at least linearly, the compile as it grew), and from where; None
     with fewer than two. Why apart: extrapolating a compile-dominated first call linearly predicted 98 s for a
-    Hermite-Simpson(1600) interior point that compiles in 20 s and solves in 0.3 s."""
+    Hermite-Simpson(1600) interior point that compiles in 20 s at every N and solves in 0.3 s."""
     if len(history) < 2:
         return None
-    (n1, t1, _), (n2, t2, c2) = history[-2:]
-    slope = math.log(max(t2, 1e-9) / max(t1, 1e-9)) / math.log(n2 / n1)
-    return c2 + t2 * (intervals / n2) ** max(1.0, slope), f"N={n1}-{n2}"
+    (n1, t1, c1), (n2, t2, c2) = history[-2:]
+
+    def slope(a, b):
+        return math.log(max(b, 1e-9) / max(a, 1e-9)) / math.log(n2 / n1)
+
+    ratio = intervals / n2
+    return c2 * ratio ** max(0.0, slope(c1, c2)) + t2 * ratio ** max(1.0, slope(t1, t2)), f"N={n1}-{n2}"
 
 
 def skip_reason(state: dict, intervals: int, limit: float) -> str | None:

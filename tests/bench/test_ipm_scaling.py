@@ -53,10 +53,13 @@ def test_the_limit_skips_larger_n():
 
 
 def test_a_compile_that_does_not_grow_is_not_extrapolated():
-    """20 s of compile at every N and a linear 0.1 -> 0.4 s solve: 21.6 s predicted at 1600, not 4 x 20."""
+    """20 s of compile at every N and a linear 0.1 -> 0.4 s solve: 21.6 s predicted at 1600, not 4 x 20; a build
+    that grows (CasADi's single shooting: 0.33 -> 16 s) is extrapolated as it grew."""
     states = {"history": [(100, 0.1, 20.0), (400, 0.4, 20.0)], "skip": None}
     assert scaling.predicted_seconds(states["history"], 1600)[0] == pytest.approx(21.6)
     assert scaling.skip_reason(states, 1600, 90.0) is None
+    growing = [(100, 0.11, 0.33), (400, 1.5, 16.0)]
+    assert scaling.predicted_seconds(growing, 1600)[0] > 500.0
 
 
 def test_kkt_per_transcription():
