@@ -23,8 +23,8 @@ an unused row slot ``-1``, uncoupled, so each adds one known eigenvalue that the
 
 Why no pivoting across stages: a stage's rows (its defects, which hold the stage's own state with a near-identity
 coefficient) have full row rank in its own variables, so each pivot block is invertible wherever ``K`` is well
-posed, and a pivot block's own inverse (Cholesky factors where they certify it, else its eigendecomposition) is a
-stage-sized Bunch-Kaufman in effect. What could still be inaccurate is caught by one step of iterative refinement on
+posed, and a pivot block's own inverse (its equilibrated eigendecomposition) is a stage-sized Bunch-Kaufman in
+effect. What could still be inaccurate is caught by one step of iterative refinement on
 ``K`` in every solve, as the dense method does.
 """
 
