@@ -18,6 +18,11 @@ The collocation and multiple-shooting peers are ``casadi.Opti`` problems with x(
 bounds and the straight-line start of ``casadi_opti.node_conditions``, expanded to SX for IPOPT (``expand``: SX
 evaluates several times faster than Opti's MX graph). Every peer uses IPOPT with the options it is given (myriad's
 ``Ipopt().ipopt_options()`` in the bench) and re-solves from the same start on each ``solve()``.
+
+A ``parametric`` peer (``bench/batch_throughput.py``) takes the spec's parameters and x(0) as data: ``set(params,
+x0)`` poses another member of a batch on the same built NLP (nlpsol parameters for single shooting, Opti parameters
+and the straight-line start from the new x(0) for the others), so that its re-solve times IPOPT alone. The default
+bakes the spec's values in as constants (``bench/ipm_scaling.py``).
 """
 
 from __future__ import annotations
@@ -27,7 +32,16 @@ import time
 import numpy as np
 
 from myriad.compiler.casadi_export import CasadiSystem, _casadi
-from myriad.compiler.casadi_opti import _bound, _bound_controls, _path, _start, node_conditions, trapezoidal
+from myriad.compiler.casadi_opti import (
+    _bound,
+    _bound_controls,
+    _path,
+    _start,
+    node_conditions,
+    posed_at,
+    straight_line_start,
+    trapezoidal,
+)
 from myriad.runtime.integrators import RK4, Heun
 from myriad.runtime.transcriptions import (
     HermiteSimpson,
@@ -51,11 +65,23 @@ SETTINGS = {
 
 
 class OptiPeer:
-    """An Opti problem solved by IPOPT (expanded to SX), from the initial values set on it, each call."""
+    """An Opti problem solved by IPOPT (expanded to SX), from the initial values set on it, each call; ``posed``
+    (cs, the node states X, N, the parameters' and x(0)'s Opti parameters) where it is parametric."""
 
-    def __init__(self, opti, J, ipopt_options: dict):
-        self.opti, self.J = opti, J
+    def __init__(self, opti, J, ipopt_options: dict, posed: tuple | None = None):
+        self.opti, self.J, self.posed = opti, J, posed
         opti.solver("ipopt", {"print_time": False, "expand": True}, {"print_level": 0, "sb": "yes", **ipopt_options})
+
+    def set(self, params: dict | None, x0) -> None:
+        """Pose the member at ``params`` ({name: value} over the spec's values) and initial state ``x0``, and start
+        from the straight line out of ``x0``."""
+        if self.posed is None:
+            raise ValueError("OptiPeer.set: this peer bakes its parameters in; build it with parametric=True")
+        cs, X, N, P, X0 = self.posed
+        if P is not None:
+            self.opti.set_value(P, cs.params_vector(params))
+        self.opti.set_value(X0, [float(v) for v in x0])
+        straight_line_start(self.opti, cs, X, N, x0)
 
     def solve(self) -> dict:
         start = time.perf_counter()
@@ -76,6 +102,11 @@ class ShootingPeer:
         self.peer = CasadiShooting(cs, control_scale(system), state_scale(system), ipopt_options, intervals=intervals)
         z0 = transcribe(system, SETTINGS["single_shooting"](intervals)).initial_guess(default_data(system))
         self.w0 = np.asarray(z0, dtype=np.float64) / self.peer.s_u
+        self.cs = cs
+
+    def set(self, params: dict | None, x0) -> None:
+        """Pose the member at ``params`` and ``x0`` (nlpsol parameters); the start stays myriad's controls'."""
+        self.peer.p = np.concatenate([self.cs.params_vector(params), np.asarray(x0, dtype=np.float64)])
 
     def solve(self) -> dict:
         return self.peer.solve(self.w0)
@@ -131,33 +162,39 @@ def _multiple_shooting(opti, cs: CasadiSystem, X, U, T, p, N: int):
     return J
 
 
-def _opti_peer(cs: CasadiSystem, N: int, ipopt_options: dict, dynamics) -> OptiPeer:
+def _opti_peer(cs: CasadiSystem, N: int, ipopt_options: dict, dynamics, parametric: bool) -> OptiPeer:
     """Node states and controls, ``dynamics``' defects and cost, then the conditions every transcription shares."""
     ca, opti, U, T = _start(cs, N)
-    p = ca.DM(cs.params_vector()) if cs.n_params else ca.DM(0, 1)
+    p, x0 = posed_at(opti, cs, parametric=parametric)
     X = opti.variable(cs.n_states, N + 1)
     J = dynamics(opti, cs, X, U, T, p, N)
-    node_conditions(opti, cs, X, N)
+    node_conditions(opti, cs, X, N, x0)
     _bound_controls(opti, cs, U)
     _path(opti, cs, X, U, T, p, N)
     opti.minimize(J)
-    return OptiPeer(opti, J, ipopt_options)
+    posed = (cs, X, N, p if cs.n_params else None, x0) if parametric else None
+    return OptiPeer(opti, J, ipopt_options, posed)
 
 
-def _trapezoidal(cs: CasadiSystem, N: int, ipopt_options: dict) -> OptiPeer:
-    problem = trapezoidal(cs, N, ipopt_options=ipopt_options)
-    return OptiPeer(problem.opti, problem.J, ipopt_options)
+def _trapezoidal(cs: CasadiSystem, N: int, ipopt_options: dict, parametric: bool) -> OptiPeer:
+    problem = trapezoidal(cs, N, ipopt_options=ipopt_options, parametric=parametric)
+    posed = (cs, problem.X, N, problem.P, problem.X0) if parametric else None
+    return OptiPeer(problem.opti, problem.J, ipopt_options, posed)
 
 
 PEERS = {
-    "single_shooting": lambda cs, system, n, opts: ShootingPeer(cs, system, n, opts),
-    "multiple_shooting": lambda cs, system, n, opts: _opti_peer(cs, n, opts, _multiple_shooting),
-    "trapezoidal": lambda cs, system, n, opts: _trapezoidal(cs, n, opts),
-    "hermite_simpson": lambda cs, system, n, opts: _opti_peer(cs, n, opts, _hermite_simpson),
+    "single_shooting": lambda cs, system, n, opts, parametric: ShootingPeer(cs, system, n, opts),
+    "multiple_shooting": lambda cs, system, n, opts, parametric: _opti_peer(cs, n, opts, _multiple_shooting,
+                                                                            parametric),
+    "trapezoidal": lambda cs, system, n, opts, parametric: _trapezoidal(cs, n, opts, parametric),
+    "hermite_simpson": lambda cs, system, n, opts, parametric: _opti_peer(cs, n, opts, _hermite_simpson,
+                                                                          parametric),
 }
 
 
-def peer(transcription: str, cs: CasadiSystem, system, intervals: int, ipopt_options: dict):
+def peer(transcription: str, cs: CasadiSystem, system, intervals: int, ipopt_options: dict,
+         parametric: bool = False):
     """The CasADi peer of ``SETTINGS[transcription](intervals)`` for ``system`` (its export ``cs``): an object whose
-    ``solve()`` returns cost, converged, status, iterations and seconds (IPOPT's call alone)."""
-    return PEERS[transcription](cs, system, intervals, dict(ipopt_options))
+    ``solve()`` returns cost, converged, status, iterations and seconds (IPOPT's call alone); with ``parametric``
+    its ``set(params, x0)`` poses another member first (single shooting's peer is always parametric)."""
+    return PEERS[transcription](cs, system, intervals, dict(ipopt_options), parametric)

@@ -31,7 +31,8 @@ from typing import Any
 
 from .casadi_export import CasadiSystem, _casadi
 
-__all__ = ["OptiProblem", "ScenarioProblem", "node_conditions", "scenario_trapezoidal", "trapezoidal"]
+__all__ = ["OptiProblem", "ScenarioProblem", "node_conditions", "posed_at", "scenario_trapezoidal",
+           "straight_line_start", "trapezoidal"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,9 +45,12 @@ class OptiProblem:
     T: Any  # the final time: a variable when free, else a constant
     J: Any  # the objective
     G: Any  # (n_path, N + 1) the path constraint values at the nodes
+    P: Any = None  # parametric: the parameter vector's Opti parameter (None when there are no parameters)
+    X0: Any = None  # parametric: x(0)'s Opti parameter
 
 
-def trapezoidal(cs: CasadiSystem, intervals: int, *, params=None, ipopt_options: dict | None = None) -> OptiProblem:
+def trapezoidal(cs: CasadiSystem, intervals: int, *, params=None, ipopt_options: dict | None = None,
+                parametric: bool = False) -> OptiProblem:
     """Pose ``cs`` on ``intervals`` trapezoidal intervals (see the module docstring) with IPOPT as the solver.
 
     Args:
@@ -54,16 +58,17 @@ def trapezoidal(cs: CasadiSystem, intervals: int, *, params=None, ipopt_options:
         intervals: N >= 1.
         params: ``{name: value}`` overriding the spec's parameter values.
         ipopt_options: passed to IPOPT (default: quiet, tol 1e-10).
+        parametric: the parameters and x(0) as Opti parameters (``P``, ``X0``; see :func:`posed_at`).
     """
     ca, opti, U, T = _start(cs, intervals)
-    p = ca.DM(cs.params_vector(params)) if cs.n_params else ca.DM(0, 1)
+    p, x0 = posed_at(opti, cs, params, parametric)
     X = opti.variable(cs.n_states, intervals + 1)
-    J = _states(opti, cs, X, U, T, p, intervals)
+    J = _states(opti, cs, X, U, T, p, intervals, x0)
     opti.minimize(J)
     _bound_controls(opti, cs, U)
     G = _path(opti, cs, X, U, T, p, intervals)
     _solver(opti, ipopt_options)
-    return OptiProblem(opti, X, U, T, J, G)
+    return OptiProblem(opti, X, U, T, J, G, p if parametric and cs.n_params else None, x0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,7 +161,7 @@ def _start(cs: CasadiSystem, intervals: int):
     return ca, opti, U, T
 
 
-def _states(opti, cs: CasadiSystem, X, U, T, p, N: int):
+def _states(opti, cs: CasadiSystem, X, U, T, p, N: int, x0=None):
     """One set of states X (n, N + 1) under the controls U at parameters p: the trapezoidal defects, x(0), the
     required final values and the state bounds, and a straight-line start; returns its cost."""
     h = T / N
@@ -166,24 +171,48 @@ def _states(opti, cs: CasadiSystem, X, U, T, p, N: int):
     for k in range(N):
         opti.subject_to(X[:, k + 1] == X[:, k] + h / 2 * (f[k] + f[k + 1]))
     J = cs.phi(X[:, N], T, p) + sum(h / 2 * (L[k] + L[k + 1]) for k in range(N))
-    node_conditions(opti, cs, X, N)
+    node_conditions(opti, cs, X, N, x0)
     return J
 
 
-def node_conditions(opti, cs: CasadiSystem, X, N: int) -> None:
-    """x(0), the required final values and the state bounds on the node states X (n, N + 1), and a straight-line
-    start (shared with the other transcriptions of bench/casadi_transcriptions.py)."""
+def posed_at(opti, cs: CasadiSystem, params=None, parametric: bool = False):
+    """The parameter vector and x(0) a problem is posed at: constants (the spec's values, ``params`` overriding; x0
+    None, meaning the spec's), or with ``parametric`` Opti parameters holding those values, so that one built problem
+    re-solves at other values by ``opti.set_value`` (and :func:`straight_line_start` from the new x(0)) without
+    building IPOPT's NLP again."""
     ca = _casadi()
-    opti.subject_to(X[:, 0] == ca.DM(cs.x0))
+    values = cs.params_vector(params) if cs.n_params else []
+    if not parametric:
+        return (ca.DM(values) if cs.n_params else ca.DM(0, 1)), None
+    p = opti.parameter(cs.n_params) if cs.n_params else ca.DM(0, 1)
+    if cs.n_params:
+        opti.set_value(p, values)
+    x0 = opti.parameter(cs.n_states)
+    opti.set_value(x0, list(cs.x0))
+    return p, x0
+
+
+def node_conditions(opti, cs: CasadiSystem, X, N: int, x0=None) -> None:
+    """x(0) (``x0``: an expression, e.g. an Opti parameter; default the spec's x0), the required final values and the
+    state bounds on the node states X (n, N + 1), and a straight-line start from the spec's x0 (shared with the other
+    transcriptions of bench/casadi_transcriptions.py)."""
+    ca = _casadi()
+    opti.subject_to(X[:, 0] == (ca.DM(cs.x0) if x0 is None else x0))
     for i, xf in enumerate(cs.x_final):
         if xf is not None:
             opti.subject_to(X[i, N] == xf)
     for i, (lo, hi) in enumerate(zip(cs.x_lower, cs.x_upper)):
         _bound(opti, X[i, :], lo, hi)
-    # A start that satisfies the boundary conditions: a straight line from x0 to the required final values.
-    for i, (x0, xf) in enumerate(zip(cs.x0, cs.x_final)):
-        end = x0 if xf is None else xf
-        opti.set_initial(X[i, :], [x0 + (end - x0) * k / N for k in range(N + 1)])
+    straight_line_start(opti, cs, X, N, cs.x0)
+
+
+def straight_line_start(opti, cs: CasadiSystem, X, N: int, x0) -> None:
+    """A start that satisfies the boundary conditions: a straight line from ``x0`` to the required final values
+    (constant where none is required)."""
+    for i, (start, xf) in enumerate(zip(x0, cs.x_final)):
+        start = float(start)
+        end = start if xf is None else xf
+        opti.set_initial(X[i, :], [start + (end - start) * k / N for k in range(N + 1)])
 
 
 def _bound_controls(opti, cs: CasadiSystem, U) -> None:
