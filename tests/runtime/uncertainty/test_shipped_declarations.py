@@ -12,7 +12,7 @@ from myriad.runtime.uncertainty.distributions import support, uncertain_spec
 from myriad.runtime.uncertainty.robust import asks_robust
 
 DECLARED = {"van_der_pol", "pendulum", "cartpole", "mountain_car", "cancer_treatment", "mould_fungicide", "glucose",
-            "bacteria"}
+            "bacteria", "rocket_landing", "tumour", "hiv_treatment"}
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -25,7 +25,9 @@ def test_shipped_specs_solve_nominally_and_their_default_envs_are_deterministic(
     assert Env(system, EnvOptions(randomize=True)).randomized == bool(names)
     values = dict(zip(system.param_names, system.param_values))
     for n, k, a in zip(names, kinds, args):
-        lo, hi = support(k, a)
+        # the declared numbers themselves: support() rebuilds them as centre + (end - centre), off by an ulp
+        lo, hi = (a[0], a[1]) if k == "uniform" else (min(a), max(a)) if k == "choice" else support(k, a)
         assert lo <= values[n] <= hi, (n, values[n], lo, hi)
+        assert k != "choice" or values[n] in a, (n, values[n], a)  # a choice's nominal is one of its values
     if names:
         assert "Uncertainty:" in system.description and "range" in system.description
