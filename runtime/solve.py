@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from .compilation.blas import one_blas_thread
 from .data import batch_data, default_data, require_float64
 from .loader import load
 from .method import AbstractMethod
@@ -44,6 +45,7 @@ def _method(transcription: AbstractMethod | None) -> AbstractMethod:
     return method
 
 
+@one_blas_thread()  # the solve's LAPACK calls on one BLAS thread (compilation/blas.py)
 def solve(
     system: System | str,
     transcription: AbstractMethod | None = None,
@@ -134,6 +136,7 @@ def _refinement(tolerance, max_refinements, max_intervals) -> MeshRefinement | N
     return MeshRefinement(tolerance, **options)
 
 
+@one_blas_thread()
 def solve_batch(
     system: System | str,
     transcription: AbstractMethod | None = None,

@@ -1,9 +1,11 @@
 """Compilation infrastructure: what every solver, transcription and simulation compiles through, naming none of them:
 functions compiled ahead of time (:mod:`.compiled`), the traced programs kept on disk (:mod:`.programs`) and JAX's
-persistent compilation cache, which decides where they live (:mod:`.jax_cache`).
+persistent compilation cache, which decides where they live (:mod:`.jax_cache`); and the one BLAS thread the compiled
+programs' LAPACK calls run on during a solve (:mod:`.blas`).
 
-Layering: this package imports only JAX, NumPy and :mod:`myriad.runtime.atomic`; solvers, transcriptions and core
-types import it, never the reverse (``tests/runtime/test_layering.py``).
+Layering: this package imports only JAX, NumPy (SciPy and threadpoolctl in :mod:`.blas`) and
+:mod:`myriad.runtime.atomic`; solvers, transcriptions and core types import it, never the reverse
+(``tests/runtime/test_layering.py``).
 """
 
 from . import jax_cache as jax_cache

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..compilation import CompiledFunction, compile_many, program_key, programs
+from ..compilation.blas import one_blas_thread
 from ..data import require_float64
 from ..nlp import NLP, NLPResult
 from ..status import Status
@@ -249,6 +250,7 @@ class AbstractPureSolver(abc.ABC):
         / ``batch_data`` build such data), or a Python float in place of an array traces a second program."""
         return self._programs(problem).jitted
 
+    @one_blas_thread()  # also for a solver called directly (an MPC, the RL plans): compilation/blas.py
     def solve_batch(self, problem: Any, batched_data: Any, z0: Any = None) -> list:
         """Solve ``problem`` for a batch of ``data`` (every leaf with a leading axis of size ``B``) as one program.
 
@@ -288,6 +290,7 @@ class AbstractPureSolver(abc.ABC):
             for i in range(batch)
         ]
 
+    @one_blas_thread()
     def _solve_single(self, problem: Any, data: Any, z0: Any = None) -> Any:
         """One solve with its compile time measured apart; the subclass's ``solve`` calls this."""
         programs = self._programs(problem)
