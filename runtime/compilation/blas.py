@@ -27,11 +27,6 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-# Load SciPy's LAPACK (and so its OpenBLAS) now, as jaxlib does at its first LAPACK call: threadpoolctl only sees the
-# libraries loaded when its controller is made, and the controller is made once (1.4 ms each, against 16 us a limit).
-import scipy.linalg.cython_lapack  # noqa: F401
-from threadpoolctl import ThreadpoolController
-
 __all__ = ["USER_VARIABLES", "blas_threads", "one_blas_thread"]
 
 # The variables OpenBLAS (the first three, in its order), MKL and BLIS read for their thread counts.
@@ -42,7 +37,14 @@ _state = {"depth": 0, "limiter": None}
 
 
 @functools.cache
-def _controller() -> ThreadpoolController:
+def _controller():
+    # SciPy's LAPACK (and so its OpenBLAS) is loaded first, as jaxlib does at its first LAPACK call (the first solve's
+    # compile, inside the block): threadpoolctl sees only the libraries loaded when its controller is made, and the
+    # controller is made once (1.4-9 ms each, against 16 us a limit). Here, not at the top: ``import myriad.runtime``
+    # loads no SciPy (tests/runtime/test_cold_start.py); the first solve pays it once (60-70 ms measured).
+    import scipy.linalg.cython_lapack  # noqa: F401
+    from threadpoolctl import ThreadpoolController
+
     return ThreadpoolController()
 
 
