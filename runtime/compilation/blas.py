@@ -5,7 +5,8 @@ Newton steps) call the LAPACK that jaxlib takes from SciPy (``scipy.linalg.cytho
 OpenBLAS), which starts one thread per core. On small matrices those threads cost more than they save, and on a busy
 machine they fight: Van der Pol, Hermite-Simpson(100), ``InteriorPoint(kkt="dense")`` took a median 0.40-0.54 s per
 warm solve (0.8-1.1 s of CPU) with OpenBLAS's default two threads against 0.17-0.26 s (0.26 s of CPU) with one
-(2-core machine, load 1-1.9); the issue recorded 31 s under heavier load.
+(2-core machine, load 1-1.9); single shooting with 400 controls, dense, a median 3.6-10.7 s with two threads against
+0.29-0.30 s with one (load 3.8-4.1: the threads spin while they wait); the issue recorded 31 s for the first.
 
 :func:`one_blas_thread` limits every loaded BLAS to one thread (threadpoolctl) for the duration of a solve and restores
 the caller's limits after it, so the user's own NumPy work outside a solve keeps its threads. OpenBLAS's limit is a
@@ -14,9 +15,9 @@ reason any BLAS call the caller's *other* threads make while a solve runs gets o
 solves share one limit, set by the first to enter and restored by the last to leave.
 
 The user's explicit choice wins: with any of :data:`USER_VARIABLES` in the environment (``OPENBLAS_NUM_THREADS=4``,
-say, for a large dense single-shooting problem on a quiet many-core machine) nothing is changed. Code that jits a
-pure solve into its own program (``solve_fn``, a learner's training step) runs it outside :func:`myriad.runtime.solve`:
-wrap the calls in :func:`one_blas_thread` or set ``OPENBLAS_NUM_THREADS=1``.
+say, where threads may pay: large dense matrices on a quiet many-core machine, not measured here) nothing is
+changed. Code that jits a pure solve into its own program (``solve_fn``, a learner's training step) runs it outside
+:func:`myriad.runtime.solve`: wrap the calls in :func:`one_blas_thread` or set ``OPENBLAS_NUM_THREADS=1``.
 """
 
 from __future__ import annotations
