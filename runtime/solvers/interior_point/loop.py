@@ -15,11 +15,12 @@ iteration
 
 The filter is a fixed array of ``FILTER_SIZE`` pairs, emptied whenever ``mu`` changes, as IPOPT does.
 
-Where the filter rejects every step down to ``alpha_min`` (IPOPT's eq. 23), the current point joins the filter and
-the next iterations are IPOPT's feasibility restoration phase (:mod:`.restoration`), in this same loop: the Hessian
-of the constraints alone (the derivatives' objective weight is 0), an elastic feasibility problem, back to this
-iteration at a point the filter accepts. A failed restoration ends the solve (the statuses: ``InteriorPoint``), as
-does a failed search at a point too feasible to restore (IPOPT's rule) and ``STALL_COUNT`` negligible steps in a row.
+Where the filter rejects every step down to ``alpha_min`` (IPOPT's eq. 23), or ``STALL_COUNT`` negligible steps in a
+row leave the point infeasible, the current point joins the filter and the next iterations are IPOPT's feasibility
+restoration phase (:mod:`.restoration`), in this same loop: the Hessian of the constraints alone (the derivatives'
+objective weight is 0), an elastic feasibility problem, back to this iteration at a point the filter accepts. A failed
+restoration ends the solve (the statuses: ``InteriorPoint``), as does a failed search at a point too feasible to
+restore (IPOPT's rule) and ``STALL_COUNT`` negligible restoration steps in a row.
 """
 
 from __future__ import annotations
@@ -276,7 +277,8 @@ class InteriorPointStepper:
         infeasible = pt.violation > self.constr_viol_tol
         negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
         entered = new.rs.active & ~st.rs.active
-        stalls = jnp.where(entered, st.stalls, jnp.where(infeasible & negligible, st.stalls + 1, 0))
+        # The restoration phase counts its own stalls from its entry (where x does not move).
+        stalls = jnp.where(entered, 0, jnp.where(infeasible & negligible, st.stalls + 1, 0))
         failed = failed | (stalls >= STALL_COUNT)
         failure = jnp.where(infeasible, int(Status.INFEASIBLE), int(Status.NOT_CONVERGED))
         status = jnp.where(failed, failure, RUNNING).astype(st.status.dtype)
@@ -382,8 +384,14 @@ class InteriorPointStepper:
         d = self._direction(st, pt)
         flt = self._filter(st, pt, d)
         accepted, x_new, lam_new, alpha, f_type = self._search(data, st, pt, d, flt, sigma, row_scale)
+        # The STALL_COUNT-th negligible step in a row at an infeasible point goes to the restoration phase as a failed
+        # search does: ending the solve there reported INFEASIBLE with restoration never tried (Predator-Prey on
+        # multiple shooting, banded: delta_w ~1e12 where Sigma ~1e21 blurs the pivots' inertia, steps ~1e-12).
+        stalled = accepted & (st.stalls + 1 >= STALL_COUNT) & (pt.violation > self.constr_viol_tol) & (
+            jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP)
         # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
-        restore = ~accepted & d.inertia_ok & ((flt.theta > 1e-2 * tol) | (pt.violation > 0.1 * self.constr_viol_tol))
+        restore = (~accepted | stalled) & d.inertia_ok & (
+            (flt.theta > 1e-2 * tol) | (pt.violation > 0.1 * self.constr_viol_tol))
         restore = restore if m else jnp.array(False)
         # An h-type step, and the point the restoration phase starts from, add the pair to the filter.
         grow = (accepted & ~flt.tiny & ~f_type) | restore
