@@ -13,8 +13,11 @@ Differentiating ``R = 0``, ``M (dw_f, dy_a) = -dR/dtheta`` with the symmetric KK
     M = \begin{pmatrix} H_{ff} & J_{af}^\top \\ J_{af} & 0 \end{pmatrix},\qquad H = \nabla^2_{ww}(F + y^\top c),
 
 so the cotangents ``(w_bar, y_bar)`` of the solution map pull back to ``theta_bar = -(dR/dtheta)^T v`` with
-``M v = (w_bar_f, y_bar_a)``: one dense Hessian (a ``vmap`` of Hessian-vector products), one ``jnp.linalg.solve`` of
-size n + m and one VJP of ``R``; nothing of the solver's iterations is stored. The objective ``F(z*(theta); theta)``
+``M v = (w_bar_f, y_bar_a)``: one factorisation of ``M`` and one VJP of ``R``; nothing of the solver's iterations is
+stored. Where the NLP has a stage structure (collocation, multiple shooting) ``M`` is assembled and factorised stage
+by stage, as the interior point's Newton step is (:mod:`.interior_point.banded`), so a gradient costs time and memory
+linear in the number of stages; otherwise (or with ``stages=False``, the reference) it is one dense Hessian (a
+``vmap`` of Hessian-vector products) and one ``jnp.linalg.solve`` of size n + m. The objective ``F(z*(theta); theta)``
 adds its explicit part. Masked rows and columns are the identity, so shapes stay static under ``jit`` and ``vmap``.
 
 Where the rule linearises (:class:`Active`: the free variables, the active rows and ``y``) is the solver's to say:
@@ -75,10 +78,11 @@ def estimated_active(problem: ScaledProblem, data: Any, w: jax.Array) -> Active:
 
 
 def kkt_vjp(problem: ScaledProblem, data: Any, w: jax.Array, at: Active, w_bar: jax.Array,
-            y_bar: jax.Array | None = None) -> tuple[Any, jax.Array]:
+            y_bar: jax.Array | None = None, stages: bool = True) -> tuple[Any, jax.Array]:
     """``(data_bar, ok)``: the pull-back of the cotangents ``w_bar`` (of the scaled solution ``w``) and ``y_bar`` (of
     the multipliers; None: 0) to ``data`` (see the module docstring); ``ok`` is False when the KKT solve was
-    inaccurate (the caller turns the cotangents into NaN then)."""
+    inaccurate (the caller turns the cotangents into NaN then). ``stages``: solve stage by stage where the NLP has
+    a stage structure (else, or with False, the dense reference)."""
     n, m = w.shape[0], problem.n_constraints
     f_fn, c_fn = problem.objective, problem.constraints
     free, active, y = at.free, at.active, at.y
@@ -86,15 +90,18 @@ def kkt_vjp(problem: ScaledProblem, data: Any, w: jax.Array, at: Active, w_bar: 
     def lagrangian(w_, dat):
         return f_fn(w_, dat) + (jnp.dot(y, c_fn(w_, dat)) if m else 0.0)
 
-    hess = jax.jacfwd(jax.grad(lagrangian))(w, data)
-    jac = jax.jacfwd(c_fn)(w, data) if m else jnp.zeros((0, n), w.dtype)
-    keep = jnp.concatenate([free, active])
-    big = jnp.block([[hess, jac.T], [jac, jnp.zeros((m, m), w.dtype)]])
-    big = jnp.where(keep[:, None] & keep[None, :], big, 0.0) + jnp.diag(jnp.where(keep, 0.0, 1.0))
     y_bar = jnp.zeros(m, w.dtype) if y_bar is None or not m else jnp.where(active, y_bar, 0.0)
     rhs = jnp.concatenate([jnp.where(free, w_bar, 0.0), y_bar])
-    v = jnp.linalg.solve(big, rhs)
-    residual = jnp.linalg.norm(big @ v - rhs)
+    if stages and problem.stage_structure is not None and m:
+        v, residual = _stage_solve(problem, data, w, at, rhs[:n], rhs[n:])
+    else:
+        hess = jax.jacfwd(jax.grad(lagrangian))(w, data)
+        jac = jax.jacfwd(c_fn)(w, data) if m else jnp.zeros((0, n), w.dtype)
+        keep = jnp.concatenate([free, active])
+        big = jnp.block([[hess, jac.T], [jac, jnp.zeros((m, m), w.dtype)]])
+        big = jnp.where(keep[:, None] & keep[None, :], big, 0.0) + jnp.diag(jnp.where(keep, 0.0, 1.0))
+        v = jnp.linalg.solve(big, rhs)
+        residual = jnp.linalg.norm(big @ v - rhs)
     ok = jnp.isfinite(residual) & (residual <= SOLVE_RTOL * jnp.maximum(jnp.linalg.norm(rhs), 1e-300))
 
     def kkt_rows(dat):
@@ -144,3 +151,17 @@ def differentiable(raw: Callable[[Any, Any], Any], problem: ScaledProblem, activ
 
     solve.defvjp(fwd, bwd)
     return solve
+
+
+def _stage_solve(problem: ScaledProblem, data: Any, w: jax.Array, at: Active, rhs_w: jax.Array,
+                 rhs_y: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """``(v, ||M v - rhs||)`` with ``M`` assembled and factorised stage by stage (the interior point's block
+    tridiagonal factorisation, :mod:`.interior_point.banded`): cost and memory linear in the number of stages, where
+    the dense ``M`` costs ``O(n^3)``."""
+    from .interior_point import banded, stage_blocks  # here: the interior point imports this module
+
+    index = stage_blocks.StageIndex.from_structure(problem.stage_structure)
+    _, _, _, blocks = stage_blocks.stage_derivatives(problem.evaluate, index)(w, at.y, data)
+    dw, dy, residual = banded.Banded(index, index.n, index.m).solve_restricted(blocks, at.free, at.active, rhs_w,
+                                                                               rhs_y)
+    return jnp.concatenate([dw, dy]), residual

@@ -208,6 +208,22 @@ class Banded:
         cx, cl = self._join(*self._solve_stages(f, *self._split(res1 - r1, res2 - r2)))
         return dx - cx, dl - cl
 
+    def solve_restricted(self, b: sb.StageBlocks, keep_vars, keep_rows, r1, r2):
+        """``(d_x, d_lambda, ||residual||)`` for the KKT matrix ``[[H, A^T], [A, 0]]`` of ``b`` restricted to the
+        variables ``keep_vars`` and rows ``keep_rows`` (bool masks; the identity elsewhere: ``+1`` on a variable,
+        ``-1`` on a row, so a right-hand side zero there gives zero there): the implicit rule's system at a solution
+        (:mod:`~myriad.runtime.solvers.implicit`). One refinement step, as :meth:`solve`; the residual is the
+        caller's to judge (a singular restriction leaves it large: the pivots drop zero eigenvalues)."""
+        ix = self.index
+        d_x, d_c = jnp.where(keep_vars, 0.0, 1.0), jnp.where(keep_rows, 0.0, -1.0)
+        d_var = jnp.where(self.var_pad, 1.0, sb.gather_vars(ix, d_x))
+        d_row = jnp.where(self.row_pad, -1.0, sb.gather_rows(ix, d_c))
+        f, _ = self.factor(sb.restricted(b, ix, keep_vars, keep_rows), d_var, d_row, d_x[ix.border_vars],
+                           d_c[ix.border_rows])
+        dx, dl = self.solve(f, None, r1, r2)
+        t1, t2 = self._kkt_product(f, dx, dl)
+        return dx, dl, jnp.sqrt(jnp.sum((t1 - r1) ** 2) + jnp.sum((t2 - r2) ** 2))
+
     def solve_weighted(self, f: BandedFactors, jac, weights, r1, r2):
         """The restoration phase's step (:meth:`factorize_weighted`): the same solve, its ``D_c`` in the factors."""
         del weights

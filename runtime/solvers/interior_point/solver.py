@@ -69,13 +69,13 @@ class InteriorPoint(PureNLPSolver):
     (:mod:`.banded`: stage by stage, the exact inertia, cost linear in the number of stages) or, for single shooting
     without path rows, slacks or free time, stage by stage (:mod:`.riccati`: a Riccati recursion, the same
     certificate and steps); ``kkt="auto"`` (the default) takes the banded step for collocation and multiple
-    shooting, the Riccati step in vmapped batches of single shooting and in its single solves from
-    ``RICCATI_SINGLE_MIN`` steps, and the dense one elsewhere, and ``batch="auto"``
-    vmaps on an accelerator and, on a CPU, vmaps where the stage-wise step applies and maps otherwise (the
-    stage-wise step vectorises across a batch where dense Cholesky factorisations do not, but a single solve is
-    slower with it).
+    shooting (single solves and batches), the Riccati step in vmapped batches of single shooting and in its single
+    solves from ``RICCATI_SINGLE_MIN`` steps, and the dense one elsewhere, and ``batch="auto"``
+    vmaps on an accelerator and, on a CPU, vmaps where a stage-wise step applies and maps otherwise (a stage-wise
+    step vectorises across a batch where dense factorisations do not).
     ``jax.grad`` with respect to ``data`` of its ``z``, ``objective`` or ``multipliers`` is the implicit function
-    theorem's (:mod:`..implicit`; NaN cotangents for a solve that did not converge). Forward mode is not supported.
+    theorem's (:mod:`..implicit`, stage by stage where the NLP has a stage structure; NaN cotangents for a solve that
+    did not converge). Forward mode is not supported.
 
     Attributes:
         tol: the scaled optimality error (IPOPT's ``tol``) at which the solve stops.
@@ -150,12 +150,14 @@ class InteriorPoint(PureNLPSolver):
 
     def batch_strategy(self, problem: Any = None) -> str:
         """``batch``, with ``"auto"`` resolved (the class docstring): on a CPU, vmap only where the Newton step can be
-        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it)."""
+        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it: a stage structure, or single shooting
+        that allows the Riccati step)."""
         if self.batch != "auto":
             return self.batch
         if jax.default_backend() != "cpu":
             return "vmap"
-        return "vmap" if problem is not None and self.kkt != "dense" and _stagewise(problem) else "map"
+        staged = isinstance(problem, NLP) and (problem.stage_structure is not None or _stagewise(problem))
+        return "vmap" if staged and self.kkt != "dense" else "map"
 
     def batch_chunk(self, problem: Any = None) -> int | None:
         """``chunk``, with ``"auto"`` resolved (see the class docstring)."""
@@ -166,18 +168,16 @@ class InteriorPoint(PureNLPSolver):
         return CPU_CHUNK if len(jax.devices()) < 2 else CPU_CHUNK_SHARED
 
     def kkt_method(self, nlp: NLP, vmapped: bool = False) -> str:
-        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for a solve
-        (or a mapped batch's member) of an NLP with a stage structure (collocation, multiple shooting), stage-wise
-        (Riccati) for a vmapped batch or a large single solve (``RICCATI_SINGLE_MIN`` steps) of an NLP that
-        allows it, dense otherwise (see the class docstring). A vmapped
-        batch of collocation NLPs stays dense: under ``vmap`` the banded pivots' ``cond`` runs both branches, and that
-        trade is not measured yet."""
+        """The Newton system's method for ``nlp``: ``kkt``, with ``"auto"`` resolved: block-tridiagonal for an NLP
+        with a stage structure (collocation, multiple shooting), stage-wise (Riccati) for a vmapped batch or a large
+        single solve (``RICCATI_SINGLE_MIN`` steps) of single shooting that allows it, dense otherwise (see the class
+        docstring; measured in docs/notes/2026-12-06-ipm-scaling.md)."""
         if self.kkt != "auto":
             return self.kkt
-        if vmapped:
-            return "riccati" if _stagewise(nlp) else "dense"
         if isinstance(nlp, NLP) and nlp.stage_structure is not None:
             return "banded"
+        if vmapped:
+            return "riccati" if _stagewise(nlp) else "dense"
         large = isinstance(nlp, NLP) and nlp.stage_index is not None and len(nlp.stage_index) >= RICCATI_SINGLE_MIN
         return "riccati" if large and _stagewise(nlp) else "dense"
 

@@ -36,6 +36,7 @@ __all__ = [
     "hess_matvec",
     "jac_matvec",
     "jac_rmatvec",
+    "restricted",
     "scatter_rows",
     "scatter_vars",
     "stage_derivatives",
@@ -223,6 +224,24 @@ def hess_matvec(blocks: StageBlocks, index: StageIndex, v: Any) -> Any:
     core = jnp.einsum("kab,kb->ka", blocks.h_diag, vk) + upper + lower + blocks.h_border @ vb
     border = jnp.einsum("kaj,ka->j", blocks.h_border, vk) + blocks.h_bb @ vb
     return scatter_vars(index, core, border)
+
+
+def restricted(blocks: StageBlocks, index: StageIndex, keep_vars: Any, keep_rows: Any) -> StageBlocks:
+    """``blocks`` with the Hessian's rows and columns of the variables not in ``keep_vars`` (n,) and the Jacobian's
+    rows not in ``keep_rows`` (m,) and columns not in ``keep_vars`` set to zero (bool masks): the KKT matrix of a
+    subset of the variables and rows, with static shapes (the implicit rule's, where the free variables and the
+    active rows are known only at run time)."""
+    vk = gather_vars(index, keep_vars.astype(blocks.h_diag.dtype))
+    vb = keep_vars[index.border_vars].astype(vk.dtype)
+    rk = gather_rows(index, keep_rows.astype(vk.dtype))
+    rb = keep_rows[index.border_rows].astype(vk.dtype)
+    pair = lambda a, b: a[..., :, None] * b[..., None, :]  # noqa: E731
+    return StageBlocks(
+        h_diag=blocks.h_diag * pair(vk, vk), h_next=blocks.h_next * pair(vk[:-1], vk[1:]),
+        h_border=blocks.h_border * pair(vk, vb), h_bb=blocks.h_bb * pair(vb, vb),
+        j_prev=blocks.j_prev * pair(rk, _from_prev(vk)), j_diag=blocks.j_diag * pair(rk, vk),
+        j_next=blocks.j_next * pair(rk, _from_next(vk)), j_border=blocks.j_border * pair(rk, vb),
+        b_core=blocks.b_core * rb[:, None, None] * vk[None], b_bb=blocks.b_bb * pair(rb, vb))
 
 
 def to_dense(blocks: StageBlocks, index: StageIndex) -> tuple[Any, Any]:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from myriad.runtime.data import ProblemData
 from myriad.runtime.solvers import InteriorPoint
 from myriad.runtime.solvers.base import ScaledProblem
 from myriad.runtime.solvers.interior_point import kkt, stage_blocks
@@ -151,6 +152,24 @@ def test_one_compile_for_the_same_shapes():
     assert float(first.objective) != float(second.objective)
 
 
+@pytest.mark.slow  # two interior-point programs
+def test_a_vmapped_batch_is_its_members_solved_alone():
+    """``solve_batch`` of a collocation NLP vmaps the banded step (the default on a CPU as elsewhere): each member
+    takes its own solve's iterations to its optimum."""
+    _, _, nlp, data = case("trapezoidal-vdp")
+    solver = InteriorPoint()
+    assert solver.batch_strategy(nlp) == "vmap" and solver.kkt_method(nlp, vmapped=True) == "banded"
+    x0 = np.asarray(data.x0) * np.array([[1.0], [0.9], [1.1]])
+    params = {k: np.full(3, float(v)) for k, v in data.params.items()}
+    batch = solver.solve_batch(nlp, ProblemData(params, x0))
+    fn = jax.jit(solver.pure_solve(nlp))
+    for member, x in zip(batch, x0):
+        alone = fn(data._replace(x0=jnp.asarray(x)), nlp.initial_guess(data))
+        assert member.success and int(alone.status) == 0 and member.iterations == int(alone.iterations)
+        np.testing.assert_allclose(member.z, alone.z, rtol=0, atol=1e-9 * float(np.max(np.abs(alone.z))))
+    assert len({round(m.objective, 6) for m in batch}) == 3
+
+
 def test_banded_is_refused_without_a_stage_structure():
     from myriad.runtime import load, solve
     from myriad.runtime.transcriptions import SingleShooting
@@ -194,14 +213,17 @@ def test_partitioned_elimination_counts_and_solves(k, shift):
 
 def test_auto_takes_the_structure_each_nlp_has():
     """``kkt="auto"``: banded for collocation and multiple shooting, Riccati for long single shooting (a single solve
-    or a vmapped batch), dense for the published single-shooting grids and vmapped collocation batches."""
+    or a vmapped batch), dense for the published single-shooting grids; a batch of a staged NLP is vmapped on a CPU
+    (a stage-wise step), unless the dense step is asked for."""
     from myriad.runtime.transcriptions import HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
 
     system = case("trapezoidal-vdp")[0]
     solver = InteriorPoint()
     for transcription in (Trapezoidal(intervals=8), HermiteSimpson(intervals=8), MultipleShooting(intervals=8)):
         nlp = transcription.transcribe(system)
-        assert solver.kkt_method(nlp) == "banded" and solver.kkt_method(nlp, vmapped=True) == "dense"
+        assert solver.kkt_method(nlp) == "banded" and solver.kkt_method(nlp, vmapped=True) == "banded"
+        if jax.default_backend() == "cpu":
+            assert solver.batch_strategy(nlp) == "vmap" and InteriorPoint(kkt="dense").batch_strategy(nlp) == "map"
     short, long = (SingleShooting(intervals=n).transcribe(system) for n in (100, 300))
     assert solver.kkt_method(short) == "dense" and solver.kkt_method(long) == "riccati"
     assert solver.kkt_method(short, vmapped=True) == "riccati"

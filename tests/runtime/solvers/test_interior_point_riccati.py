@@ -246,6 +246,4 @@ def test_kkt_riccati_refuses_an_nlp_without_stages():
     problem = ScaledProblem.from_nlp(nlp)
     with pytest.raises(ValueError, match="stage-wise"):
         Layout(problem, "riccati")
-    assert not Layout.stagewise(problem) and InteriorPoint().kkt_method(nlp, vmapped=True) == "dense"
-    if jax.default_backend() == "cpu":
-        assert InteriorPoint().batch_strategy(nlp) == "map"
+    assert not Layout.stagewise(problem) and InteriorPoint().kkt_method(nlp, vmapped=True) == "banded"
