@@ -292,11 +292,17 @@ def run_system(name, args) -> dict:
 
 
 def _head() -> str:
+    """HEAD's short hash, with the files of runtime/ and compiler/ that differ from it (a shared work tree measures
+    whatever is there, committed or not)."""
+    def git(*argv) -> str:
+        return subprocess.run(["git", "-C", str(ROOT), *argv], capture_output=True, text=True, timeout=10).stdout
+
     try:
-        return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, timeout=10).stdout.strip() or "?"
+        head = git("rev-parse", "--short", "HEAD").strip() or "?"
+        dirty = [line[3:] for line in git("status", "--porcelain", "--", "runtime", "compiler").splitlines()]
     except (OSError, subprocess.SubprocessError):
         return "?"
+    return head + (f" + uncommitted {', '.join(dirty)}" if dirty else "")
 
 
 def _checked(argv) -> argparse.Namespace:
