@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 from typing import NamedTuple, Protocol
 
+from ..compilation.blas import one_blas_thread
 from .progress import progress_meter
 
 __all__ = ["Learner", "Step", "Stop", "check_run", "checkpoint_path", "train"]
@@ -50,6 +51,7 @@ class Learner(Protocol):
     def save(self, done: int) -> None: ...
 
 
+@one_blas_thread()  # a learner's step runs solves jitted into its own program, outside runtime.solve
 def train(learner: Learner, *, start: int, end: int, every: int | None, progress: bool | None,
           exhausted: Stop) -> tuple[Stop, str]:
     """Run ``learner.step(index)`` for index = ``start`` (a resumed run's steps done), ..., ``end`` - 1 until one
