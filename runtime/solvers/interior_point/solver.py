@@ -71,8 +71,8 @@ class InteriorPoint(PureNLPSolver):
     certificate and steps); ``kkt="auto"`` (the default) takes the banded step for collocation and multiple
     shooting (single solves and batches), the Riccati step in vmapped batches of single shooting and in its single
     solves from ``RICCATI_SINGLE_MIN`` steps, and the dense one elsewhere, and ``batch="auto"``
-    vmaps on an accelerator and, on a CPU, vmaps where a stage-wise step applies and maps otherwise (a stage-wise
-    step vectorises across a batch where dense factorisations do not).
+    vmaps on an accelerator and, on a CPU, vmaps where the Riccati step applies and maps otherwise (see
+    :meth:`batch_strategy`).
     ``jax.grad`` with respect to ``data`` of its ``z``, ``objective`` or ``multipliers`` is the implicit function
     theorem's (:mod:`..implicit`, stage by stage where the NLP has a stage structure; NaN cotangents for a solve that
     did not converge). Forward mode is not supported.
@@ -149,15 +149,16 @@ class InteriorPoint(PureNLPSolver):
         return self._compiled(nlp).cold
 
     def batch_strategy(self, problem: Any = None) -> str:
-        """``batch``, with ``"auto"`` resolved (the class docstring): on a CPU, vmap only where the Newton step can be
-        stage-wise (``kkt`` not ``"dense"``, ``problem`` an NLP that allows it: a stage structure, or single shooting
-        that allows the Riccati step)."""
+        """``batch``, with ``"auto"`` resolved (the class docstring): on a CPU, vmap only where the Riccati step
+        applies (``kkt`` not ``"dense"``, ``problem`` single shooting that allows it). Collocation and multiple
+        shooting map on a CPU: vmapped through :meth:`solve_batch`, their batches of 128 members or more have hung
+        in XLA's CPU runtime (a batched LAPACK kernel waiting on its own thread pool; the same vmapped program called
+        directly did not), which is open (docs/notes/2026-12-06-ipm-scaling.md); ``batch="vmap"`` asks for it."""
         if self.batch != "auto":
             return self.batch
         if jax.default_backend() != "cpu":
             return "vmap"
-        staged = isinstance(problem, NLP) and (problem.stage_structure is not None or _stagewise(problem))
-        return "vmap" if staged and self.kkt != "dense" else "map"
+        return "vmap" if problem is not None and self.kkt != "dense" and _stagewise(problem) else "map"
 
     def batch_chunk(self, problem: Any = None) -> int | None:
         """``chunk``, with ``"auto"`` resolved (see the class docstring)."""

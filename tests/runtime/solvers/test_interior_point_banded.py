@@ -154,11 +154,11 @@ def test_one_compile_for_the_same_shapes():
 
 @pytest.mark.slow  # two interior-point programs
 def test_a_vmapped_batch_is_its_members_solved_alone():
-    """``solve_batch`` of a collocation NLP vmaps the banded step (the default on a CPU as elsewhere): each member
-    takes its own solve's iterations to its optimum."""
+    """``solve_batch(batch="vmap")`` of a collocation NLP vmaps the banded step: each member takes its own solve's
+    iterations to its optimum."""
     _, _, nlp, data = case("trapezoidal-vdp")
-    solver = InteriorPoint()
-    assert solver.batch_strategy(nlp) == "vmap" and solver.kkt_method(nlp, vmapped=True) == "banded"
+    solver = InteriorPoint(batch="vmap")
+    assert solver.kkt_method(nlp, vmapped=True) == "banded"
     x0 = np.asarray(data.x0) * np.array([[1.0], [0.9], [1.1]])
     params = {k: np.full(3, float(v)) for k, v in data.params.items()}
     batch = solver.solve_batch(nlp, ProblemData(params, x0))
@@ -213,8 +213,7 @@ def test_partitioned_elimination_counts_and_solves(k, shift):
 
 def test_auto_takes_the_structure_each_nlp_has():
     """``kkt="auto"``: banded for collocation and multiple shooting, Riccati for long single shooting (a single solve
-    or a vmapped batch), dense for the published single-shooting grids; a batch of a staged NLP is vmapped on a CPU
-    (a stage-wise step), unless the dense step is asked for."""
+    or a vmapped batch), dense for the published single-shooting grids."""
     from myriad.runtime.transcriptions import HermiteSimpson, MultipleShooting, SingleShooting, Trapezoidal
 
     system = case("trapezoidal-vdp")[0]
@@ -222,8 +221,8 @@ def test_auto_takes_the_structure_each_nlp_has():
     for transcription in (Trapezoidal(intervals=8), HermiteSimpson(intervals=8), MultipleShooting(intervals=8)):
         nlp = transcription.transcribe(system)
         assert solver.kkt_method(nlp) == "banded" and solver.kkt_method(nlp, vmapped=True) == "banded"
-        if jax.default_backend() == "cpu":
-            assert solver.batch_strategy(nlp) == "vmap" and InteriorPoint(kkt="dense").batch_strategy(nlp) == "map"
+        if jax.default_backend() == "cpu":  # the hang in solver.batch_strategy's docstring
+            assert solver.batch_strategy(nlp) == "map"
     short, long = (SingleShooting(intervals=n).transcribe(system) for n in (100, 300))
     assert solver.kkt_method(short) == "dense" and solver.kkt_method(long) == "riccati"
     assert solver.kkt_method(short, vmapped=True) == "riccati"
