@@ -71,8 +71,9 @@ def _one(kind: str, args: tuple[float, ...], key: Any, shape: tuple[int, ...], w
         return jnp.exp(args[0] + widen * args[1] * jax.random.normal(key, shape, dtype))
     values = np.asarray(args, np.float64)  # choice: equally likely values, spread about their mean
     c = float(np.mean(values))
-    picked = jnp.asarray(values - c, dtype)[jax.random.randint(key, shape, 0, len(values))]
-    return c + widen * picked
+    picked = jnp.asarray(values, dtype)[jax.random.randint(key, shape, 0, len(values))]
+    # The declared values themselves at widen 1: c + (v - c) can be one rounding step off v (0.15000000000000002).
+    return jnp.where(jnp.asarray(widen) == 1.0, picked, c + widen * (picked - c))
 
 
 def sample(system: System, key: Any, n: int, widen: Any = 1.0, dtype: Any = None) -> Any:
@@ -169,4 +170,6 @@ def support(kind: str, args: tuple[float, ...], widen: float = 1.0) -> tuple[flo
         return 0.0, math.inf
     c = centre(kind, args)
     lo, hi = (args[0], args[1]) if kind == "uniform" else (min(args), max(args))
+    if widen == 1.0:
+        return lo, hi
     return c + widen * (lo - c), c + widen * (hi - c)
