@@ -61,8 +61,9 @@ RUNNING = -1
 # program with it (InteriorPointStepper.rest) continues from the state it stopped at. Never a solve's final status.
 NEEDS_RESTORATION = -2
 MU_INIT = 0.1
-# A step below STALL_STEP (relative to |x|) at an infeasible point, STALL_COUNT times in a row, ends the solve as
-# INFEASIBLE: the fraction-to-the-boundary rule shrinks every step towards bounds that block all progress.
+# A step below STALL_STEP (relative to |x|) at an infeasible point, STALL_COUNT times in a row, sends the main phase to
+# the restoration phase and ends the restoration phase as INFEASIBLE: the fraction-to-the-boundary rule shrinks every
+# step towards bounds that block all progress.
 STALL_STEP, STALL_COUNT = 1e-10, 3
 # A primal-dual warm start (IPOPT's warm_start_init_point): the barrier parameter it restarts from (the last solve's
 # ~tol/10 would leave no room to re-centre when the active set moves) and the push off the bounds (relative).
@@ -275,7 +276,7 @@ class InteriorPointStepper:
         else:
             new, failed, needs = advance(None)
         infeasible = pt.violation > self.constr_viol_tol
-        negligible = jnp.max(jnp.abs(new.x - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
+        negligible = _negligible(new.x, x)
         entered = new.rs.active & ~st.rs.active
         # The restoration phase counts its own stalls from its entry (where x does not move).
         stalls = jnp.where(entered, 0, jnp.where(infeasible & negligible, st.stalls + 1, 0))
@@ -387,8 +388,8 @@ class InteriorPointStepper:
         # The STALL_COUNT-th negligible step in a row at an infeasible point goes to the restoration phase as a failed
         # search does: ending the solve there reported INFEASIBLE with restoration never tried (Predator-Prey on
         # multiple shooting, banded: delta_w ~1e12 where Sigma ~1e21 blurs the pivots' inertia, steps ~1e-12).
-        stalled = accepted & (st.stalls + 1 >= STALL_COUNT) & (pt.violation > self.constr_viol_tol) & (
-            jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP)
+        stalled = (accepted & (st.stalls + 1 >= STALL_COUNT) & (pt.violation > self.constr_viol_tol)
+                   & _negligible(x_new, x))
         # Every step rejected: the restoration phase, unless the point is too feasible for it (IPOPT's rule).
         restore = (~accepted | stalled) & d.inertia_ok & (
             (flt.theta > 1e-2 * tol) | (pt.violation > 0.1 * self.constr_viol_tol))
@@ -450,3 +451,8 @@ class InteriorPointStepper:
             active_rows=rows_active,
             warm=WarmStart(st.x, st.lam, st.zl, st.zu, jnp.maximum(st.mu, WARM_MU), st.sigma, st.row_scale,
                            jnp.zeros((), st.x.dtype)))
+
+
+def _negligible(x_new, x) -> jax.Array:
+    """Whether the step from ``x`` to ``x_new`` is below ``STALL_STEP`` relative to ``|x|`` in every entry."""
+    return jnp.max(jnp.abs(x_new - x) / (1.0 + jnp.abs(x)), initial=0.0) <= STALL_STEP
